@@ -1,0 +1,69 @@
+"""The Kinect v2 calibration of the THOR head camera (`cameraParam/` folder, pickles)."""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import numpy as np
+
+from slamlab.errors import DataError
+from slamlab.frames import CameraIntrinsics, KinectCalibration
+
+IR_FILE = "IRcam_Calib_result.pkl"
+RGB_FILE = "RGBcamera_Calib_result.pkl"
+EXTRINSICS_FILE = "exParams.pkl"
+
+
+def _load_pickle(path: Path) -> dict:
+    if not path.is_file():
+        raise DataError(path, "calibration file is missing")
+    try:
+        with path.open("rb") as f:
+            # exParams.pkl is a Python 2 pickle of numpy arrays: latin1 reads it.
+            obj = pickle.load(f, encoding="latin1")
+    except Exception as exc:  # truncated or not a pickle
+        raise DataError(path, f"cannot read calibration pickle ({exc.__class__.__name__}: {exc})") from None
+    if not isinstance(obj, dict):
+        raise DataError(path, f"expected a dict, got {type(obj).__name__}")
+    return obj
+
+
+def _field(d: dict, path: Path, name: str, size: int) -> np.ndarray:
+    if name not in d:
+        raise DataError(path, "missing", field=name)
+    arr = np.asarray(d[name], dtype=np.float64).reshape(-1)
+    if arr.size != size or not np.all(np.isfinite(arr)):
+        raise DataError(path, f"expected {size} finite numbers, got {arr.size}", field=name)
+    return arr
+
+
+def _intrinsics(path: Path) -> CameraIntrinsics:
+    d = _load_pickle(path)
+    kc = _field(d, path, "kc", 5)
+    size = _field(d, path, "im_size", 2).astype(int)
+    return CameraIntrinsics(
+        fc=_field(d, path, "fc", 2),
+        cc=_field(d, path, "cc", 2),
+        kc=kc,
+        alpha_c=float(d.get("alpha_c", 0.0)),
+        width=int(size[0]),
+        height=int(size[1]),
+    )
+
+
+def load_kinect_calibration(folder: str | Path) -> KinectCalibration:
+    """Read `IRcam_Calib_result.pkl`, `RGBcamera_Calib_result.pkl` and `exParams.pkl`."""
+    folder = Path(folder)
+    ext_path = folder / EXTRINSICS_FILE
+    ext = _load_pickle(ext_path)
+    R = _field(ext, ext_path, "R", 9).reshape(3, 3)
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-3):
+        raise DataError(ext_path, "is not a rotation matrix", field="R")
+    return KinectCalibration(
+        ir=_intrinsics(folder / IR_FILE),
+        rgb=_intrinsics(folder / RGB_FILE),
+        R=R,
+        T_mm=_field(ext, ext_path, "T", 3),
+    )
+

@@ -1,0 +1,156 @@
+"""The one frame type every dataset adapter produces, and what comes with a sequence.
+
+Data flows one way: an adapter (sim | thor | carmen) turns files into a `Sequence`; the
+SLAM engine and the texture mapper read only these types and never learn the file format.
+
+Conventions (units in names where not obvious):
+- times are seconds (float64); poses SE(2) are (x m, y m, theta rad) in the odometry frame;
+- the body frame is x forward, y left, z up; its world pose is
+  Txyz(x, y, body_height_m) Rz(theta) Ry(pitch) Rx(roll);
+- `lidar_to_body` / `camera_to_body` are 4x4 SE(3) matrices (metres) at that instant.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from slamlab.geometry import FloatArray
+
+
+@dataclass(frozen=True, slots=True)
+class ScanFrame:
+    """One 2D lidar scan with everything needed to place it in the world.
+
+    `index` is the record number in the source (0-based, file order); `t` the scan time (s).
+    `ranges` (m, float32) and `angles` (rad, float32, lidar frame, CCW from +x) have equal
+    length; `valid` marks usable beams (False for no-return, out-of-range, NaN/inf).
+    `roll`/`pitch` (rad) are the body attitude; 0.0 when the source does not know it.
+    """
+
+    index: int
+    t: float
+    odom: FloatArray
+    ranges: np.ndarray
+    angles: np.ndarray
+    valid: np.ndarray
+    lidar_to_body: FloatArray
+    roll: float = 0.0
+    pitch: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class RGBDFrame:
+    """One Kinect v2 frame, images already un-mirrored (as a person would see them).
+
+    `depth_m`: (H, W) float32 metres, 0 where invalid, in the IR camera.
+    `rgb`: (H, W, 3) uint8 colour image, or None if this depth frame has no colour match.
+    `t` is the depth time (s), `rgb_t` the colour time. `camera_to_body` places the IR
+    optical frame (z forward, x right, y down) in the body frame at time `t`.
+    `odom` is the odometry pose (x, y, theta) at `t`; `roll`/`pitch` body attitude (rad).
+    """
+
+    index: int
+    t: float
+    depth_m: np.ndarray
+    rgb: np.ndarray | None
+    rgb_t: float
+    head_angles: FloatArray  # (neck yaw, head pitch) rad
+    camera_to_body: FloatArray
+    odom: FloatArray
+    roll: float = 0.0
+    pitch: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class CameraIntrinsics:
+    """Pinhole + distortion (Bouguet toolbox convention), pixels."""
+
+    fc: FloatArray  # (2,) focal lengths px
+    cc: FloatArray  # (2,) principal point px
+    kc: FloatArray  # (5,) distortion k1 k2 p1 p2 k3
+    alpha_c: float
+    width: int
+    height: int
+
+
+@dataclass(frozen=True, slots=True)
+class KinectCalibration:
+    """The Kinect v2 pair: `P_rgb = R @ P_ir + T_mm / 1000` (metres)."""
+
+    ir: CameraIntrinsics
+    rgb: CameraIntrinsics
+    R: FloatArray  # (3, 3)
+    T_mm: FloatArray  # (3,)
+
+
+@dataclass(frozen=True, slots=True)
+class GridImage:
+    """A raster aligned with the world: cell (row r, col c) covers
+    x in [origin_x + c*res, +res), y in [origin_y + r*res, +res) (row 0 = lowest y)."""
+
+    data: np.ndarray
+    resolution_m: float
+    origin_xy: tuple[float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class GroundTruth:
+    """What the simulator knows. `poses` (N, 3) is the true body pose at each scan time
+    (same order as `Sequence.scans`); `occupancy` is a bool GridImage (True = wall);
+    `floor_texture` a uint8 (H, W, 3) GridImage; `ground_labels` maps RGB-D frame index to a
+    bool (H, W) mask in the un-mirrored depth image (True = pixel sees the floor)."""
+
+    poses: FloatArray
+    occupancy: GridImage | None = None
+    floor_texture: GridImage | None = None
+    ground_labels: dict[int, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class Relations:
+    """Benchmark relations (Kuemmerle et al. 2009): pose at t2 seen from t1, (x, y, theta)."""
+
+    t1: FloatArray
+    t2: FloatArray
+    rel: FloatArray  # (M, 3)
+    path: str = ""
+
+
+@dataclass(slots=True)
+class Sequence:
+    """A time-ordered scan log plus what comes with it.
+
+    `scans` are in file order (never re-sorted: some logs have clocks that step back).
+    `body_height_m` is the body origin's height above the floor (m), or None for a planar
+    robot whose lidar never sees the floor (ground filtering is then off).
+    `rgbd` returns a fresh lazy iterator over RGB-D frames (memory bounded by one file), or
+    is None when the sequence has no RGB-D. `sources` lists the files read, for fingerprints.
+    """
+
+    name: str
+    scans: list[ScanFrame]
+    body_height_m: float | None
+    sources: list[str]
+    rgbd: Callable[[], Iterator[RGBDFrame]] | None = None
+    rgbd_count: int = 0
+    calibration: KinectCalibration | None = None
+    ground_truth: GroundTruth | None = None
+    relations: Relations | None = None
+    max_range_m: float = 30.0
+    min_range_m: float = 0.1
+
+    def __len__(self) -> int:
+        return len(self.scans)
+
+    @property
+    def times(self) -> FloatArray:
+        """Scan times (s), file order."""
+        return np.array([s.t for s in self.scans], dtype=np.float64)
+
+    @property
+    def odometry(self) -> FloatArray:
+        """(N, 3) odometry poses, file order."""
+        return np.array([s.odom for s in self.scans], dtype=np.float64).reshape(-1, 3)
