@@ -1,0 +1,71 @@
+"""What it takes to reproduce a run: resolved config, data fingerprint, versions, seed."""
+
+from __future__ import annotations
+
+import hashlib
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf
+
+import slamlab
+
+
+def fingerprint_files(paths: list[str]) -> dict:
+    """sha256 over the given files (folders: every file inside, sorted by relative path).
+
+    Returns {"sha256": hex digest over all, "files": {name: {"bytes", "sha256"}}}.
+    """
+    total = hashlib.sha256()
+    files: dict[str, dict] = {}
+    for src in sorted(paths):
+        p = Path(src)
+        members = sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else [p]
+        for q in members:
+            h = hashlib.sha256()
+            with q.open("rb") as f:
+                for chunk in iter(lambda: f.read(1 << 20), b""):
+                    h.update(chunk)
+            name = str(q.relative_to(p.parent)) if p.is_dir() else q.name
+            files[name] = {"bytes": q.stat().st_size, "sha256": h.hexdigest()}
+            total.update(name.encode() + b"\0" + h.digest())
+    return {"sha256": total.hexdigest(), "files": files}
+
+
+def _git_commit() -> str | None:
+    try:
+        root = Path(slamlab.__file__).resolve().parents[1]
+        out = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5
+        )
+        return out.stdout.strip() or None if out.returncode == 0 else None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def build_manifest(cfg: DictConfig, sources: list[str], overrides: list[str], cwd: str) -> dict:
+    """The manifest.json content for a run."""
+    import numba
+    import numpy
+    import scipy
+
+    return {
+        "slamlab_version": slamlab.__version__,
+        "git_commit": _git_commit(),
+        "seed": int(cfg.seed),
+        "overrides": list(overrides),
+        "cwd": cwd,
+        "command": " ".join(["slamlab", *overrides]),
+        "data": fingerprint_files(sources),
+        "platform": {
+            "python": sys.version.split()[0],
+            "machine": platform.machine(),
+            "system": platform.system(),
+            "numpy": numpy.__version__,
+            "scipy": scipy.__version__,
+            "numba": numba.__version__,
+        },
+        "config": OmegaConf.to_container(cfg, resolve=True),
+    }

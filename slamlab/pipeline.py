@@ -1,0 +1,257 @@
+"""One run, start to finish: load -> SLAM -> evaluate -> texture -> artifacts -> report.
+
+The Hydra app (`slamlab.cli.app`) only resolves the config and the run directory and
+calls `run_pipeline`; tests call it directly with a composed config.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import resource
+import sys
+import time
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from hydra.errors import InstantiationException
+from hydra.utils import instantiate
+from omegaconf import DictConfig
+
+from slamlab import artifacts
+from slamlab.errors import ConfigError, DataError, SlamlabError
+from slamlab.frames import Sequence
+from slamlab.manifest import build_manifest
+from slamlab.progress import make_progress
+from slamlab.slam.result import SlamResult
+
+log = logging.getLogger("slamlab")
+
+# Files whose presence means a folder already holds a (finished or failed) run.
+RUN_MARKERS = ("metrics.json", "manifest.json", "trajectory.tum")
+
+
+class RunDirectoryInUse(SlamlabError):
+    """The run directory already holds another run's artifacts."""
+
+
+def user_error(exc: BaseException) -> SlamlabError | None:
+    """The SlamlabError behind `exc` (Hydra wraps errors raised while instantiating)."""
+    seen = 0
+    while exc is not None and seen < 10:
+        if isinstance(exc, SlamlabError):
+            return exc
+        exc = exc.__cause__ or exc.__context__
+        seen += 1
+    return None
+
+
+def load_sequence(dataset_cfg: DictConfig) -> Sequence:
+    """Build the dataset named by the `dataset` config group (`_target_` loader)."""
+    try:
+        seq = instantiate(dataset_cfg, _convert_="all")
+    except InstantiationException as exc:
+        err = user_error(exc)
+        if err is not None:
+            raise err from None
+        raise
+    if not isinstance(seq, Sequence):
+        raise ConfigError("dataset._target_", f"must return a slamlab Sequence, got {type(seq).__name__}")
+    if len(seq) == 0:
+        raise DataError(",".join(seq.sources) or seq.name, "the log holds no scans")
+    return seq
+
+
+def peak_memory_mb() -> float:
+    """Peak resident set size of this process (MB)."""
+    kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return kb / 1024.0 if sys.platform != "darwin" else kb / 1024.0 / 1024.0
+
+
+def _check_fresh(run_dir: Path) -> None:
+    taken = [m for m in RUN_MARKERS if (run_dir / m).exists()]
+    if taken:
+        raise RunDirectoryInUse(
+            f"{run_dir} already holds a run ({', '.join(taken)}); slamlab never overwrites a run. "
+            "Choose another hydra.run.dir."
+        )
+
+
+def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> dict:
+    """Runtime and filter statistics common to every dataset."""
+    span = float(np.ptp(result.times)) if len(result.times) > 1 else 0.0
+    steps = result.steps
+    neff = steps["neff"].to_numpy(dtype=float) if len(steps) else np.array([float("nan")])
+    runtime = max(result.runtime_s, 1e-9)
+    return {
+        "status": "ok",
+        "dataset": seq.name,
+        "mode": str(cfg.mode),
+        "scans": len(seq),
+        "processed_steps": int(len(steps)),
+        "particles": int(result.particles),
+        "seed": int(cfg.seed),
+        "duration_s": span,
+        "runtime_s": result.runtime_s,
+        "scans_per_s": len(seq) / runtime,
+        "realtime_factor": span / runtime if span > 0 else float("nan"),
+        "resample_count": int(result.resample_count),
+        "neff_mean": float(np.nanmean(neff)),
+        "neff_min": float(np.nanmin(neff)),
+        "trajectory_fill": result.fill,
+    }
+
+
+def accuracy_metrics(seq: Sequence, result: SlamResult) -> dict:
+    """Accuracy against what the dataset knows: ground truth (sim) or relations (CARMEN)."""
+    out: dict = {}
+    gt = seq.ground_truth
+    if gt is not None:
+        from slamlab.eval.trajectory import map_agreement, trajectory_errors
+
+        traj = trajectory_errors(result.trajectory, gt.poses)
+        causal = trajectory_errors(result.causal, gt.poses)
+        odom = trajectory_errors(result.odometry, gt.poses)
+        traj.update(
+            causal_rmse_m=causal["rmse_m"],
+            causal_mean_m=causal["mean_m"],
+            odometry_rmse_m=odom["rmse_m"],
+            odometry_mean_m=odom["mean_m"],
+        )
+        out["trajectory"] = traj
+        if gt.occupancy is not None:
+            out["map"] = map_agreement(result.log_odds, gt.occupancy)
+    if seq.relations is not None:
+        from slamlab.eval.relations import relation_errors
+
+        rel = relation_errors(result.times, result.trajectory, seq.relations)
+        rel["causal"] = relation_errors(result.times, result.causal, seq.relations)
+        rel["odometry"] = relation_errors(result.times, result.odometry, seq.relations)
+        out["relations"] = rel
+    return out
+
+
+def run_texture_stage(seq: Sequence, result: SlamResult, cfg: DictConfig, run_dir: Path) -> dict:
+    """Texture the floor with the SLAM and the odometry trajectories; write its outputs.
+
+    Any failure here is reported in metrics and never loses the SLAM results.
+    """
+    from slamlab.texture.pipeline import run_texture, save_texture_outputs, texture_metrics
+
+    occ = artifacts.occupancy_probability(result.log_odds.data)
+    out: dict = {}
+    slam_tex = run_texture(seq, result.times, result.trajectory, result.log_odds, cfg.ground, cfg.texture)
+    save_texture_outputs(slam_tex, occ, run_dir, prefix="texture")
+    odo_tex = run_texture(seq, result.times, result.odometry, result.log_odds, cfg.ground, cfg.texture)
+    save_texture_outputs(odo_tex, occ, run_dir, prefix="texture_odometry")
+    if seq.ground_truth is not None:
+        out = texture_metrics(slam_tex, seq.ground_truth)
+        out["odometry"] = texture_metrics(odo_tex, seq.ground_truth)
+    else:
+        out = texture_metrics(slam_tex, None)
+    return out
+
+
+def texture_enabled(seq: Sequence, cfg: DictConfig) -> bool:
+    """Texture runs only when the dataset has RGB-D and `texture` is not `none`."""
+    return seq.rgbd is not None and bool(cfg.texture.get("enabled", True))
+
+
+def run_pipeline(
+    cfg: DictConfig,
+    run_dir: Path,
+    overrides: list[str] | None = None,
+    progress: Callable[[int, int], None] | str | None = "auto",
+) -> dict:
+    """Run SLAM (+ texture) for `cfg` and write every artifact into `run_dir`.
+
+    Returns the metrics dict (also written to metrics.json). User mistakes raise a
+    SlamlabError; a failed run still writes metrics.json with status "failed" and the error.
+    """
+    from slamlab.slam.engine import run_slam, validate_config
+
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    _check_fresh(run_dir)
+    t0 = time.perf_counter()
+    try:
+        validate_config(cfg)
+        seq = load_sequence(cfg.dataset)
+        log.info("dataset %s: %d scans, %s RGB-D frames", seq.name, len(seq), seq.rgbd_count if seq.rgbd else "no")
+        reporter = make_progress(progress, label="SLAM") if not callable(progress) else progress
+        result = run_slam(seq, cfg, progress=reporter)
+        if hasattr(reporter, "close"):
+            reporter.close()
+
+        metrics = filter_metrics(seq, result, cfg)
+        metrics.update(accuracy_metrics(seq, result))
+
+        # SLAM results first: whatever happens to texture afterwards, these are kept.
+        artifacts.write_map(run_dir, result.log_odds)
+        artifacts.write_tum(run_dir / "trajectory.tum", result.times, result.trajectory)
+        artifacts.write_tum(run_dir / "trajectory_causal.tum", result.times, result.causal)
+        artifacts.write_tum(run_dir / "odometry.tum", result.times, result.odometry)
+        if seq.ground_truth is not None:
+            artifacts.write_tum(run_dir / "groundtruth.tum", result.times, seq.ground_truth.poses)
+        artifacts.write_steps(run_dir, result.steps)
+
+        if texture_enabled(seq, cfg):
+            try:
+                metrics["texture"] = run_texture_stage(seq, result, cfg, run_dir)
+            except Exception as exc:  # keep SLAM results; say what went wrong
+                err = user_error(exc) or exc
+                log.error("texture mapping failed, SLAM results kept: %s", err)
+                metrics["texture"] = {"status": "failed", "error": str(err)}
+
+        metrics["total_runtime_s"] = time.perf_counter() - t0
+        metrics["peak_memory_mb"] = peak_memory_mb()
+        artifacts.write_json(run_dir / "manifest.json", build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
+        artifacts.write_json(run_dir / "metrics.json", metrics)
+    except BaseException as exc:
+        artifacts.remove_partials(run_dir)
+        _write_failure(run_dir, exc)
+        raise
+    if cfg.get("report", True):
+        _write_report(run_dir)
+    _log_summary(metrics)
+    return metrics
+
+
+def _write_failure(run_dir: Path, exc: BaseException) -> None:
+    """metrics.json with the error, so sweep reports show the failed run."""
+    if (run_dir / "metrics.json").exists():
+        return
+    err = user_error(exc)
+    status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
+    info = {"status": status, "error": str(err or exc) or type(exc).__name__}
+    if err is None and not isinstance(exc, KeyboardInterrupt):
+        info["traceback"] = "".join(traceback.format_exception(exc))
+    try:
+        artifacts.write_json(run_dir / "metrics.json", info)
+    except OSError:
+        pass
+
+
+def _write_report(run_dir: Path) -> None:
+    try:
+        from slamlab.report.run_report import write_run_report
+
+        write_run_report(run_dir)
+    except Exception as exc:  # a report problem must not fail a finished run
+        log.error("could not write report.html: %s", exc)
+
+
+def _log_summary(m: dict) -> None:
+    parts = [f"{m['scans']} scans in {m['runtime_s']:.1f} s ({m['scans_per_s']:.0f} scans/s)"]
+    if "trajectory" in m:
+        parts.append(f"trajectory RMSE {m['trajectory']['rmse_m']:.3f} m (odometry {m['trajectory']['odometry_rmse_m']:.3f} m)")
+    if "relations" in m:
+        r = m["relations"]
+        parts.append(f"relation error {r['trans_abs_mean_m']:.3f} m / {r['rot_abs_mean_deg']:.2f} deg")
+    if isinstance(m.get("texture"), dict) and "colour_error" in m["texture"]:
+        parts.append(f"texture colour error {m['texture']['colour_error']:.1f}")
+    if not math.isnan(m.get("peak_memory_mb", float("nan"))):
+        parts.append(f"peak memory {m['peak_memory_mb']:.0f} MB")
+    log.info("done: %s", "; ".join(parts))
