@@ -1,0 +1,60 @@
+"""Which metrics.json keys the reports show, how they are labelled, and which way is better.
+
+One table of names keeps the run report, the sweep table and the plots consistent.
+Keys are dotted paths into metrics.json (docs/RUN_DIRECTORY.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from slamlab.report.rundir import as_float
+
+
+@dataclass(frozen=True, slots=True)
+class MetricSpec:
+    """`better` is "min", "max", or None (informative only: no best value marked)."""
+
+    key: str
+    label: str
+    better: str | None
+
+
+# Order = column order in the sweep table.
+METRICS: tuple[MetricSpec, ...] = (
+    MetricSpec("trajectory.rmse_m", "ATE RMSE (m)", "min"),
+    MetricSpec("trajectory.mean_m", "ATE mean (m)", "min"),
+    MetricSpec("trajectory.max_m", "ATE max (m)", "min"),
+    MetricSpec("trajectory.rot_rmse_deg", "rot RMSE (°)", "min"),
+    MetricSpec("trajectory.causal_rmse_m", "causal RMSE (m)", "min"),
+    # Odometry error is a property of the data, not of the filter: shown, never "best".
+    MetricSpec("trajectory.odometry_rmse_m", "odometry RMSE (m)", None),
+    MetricSpec("relations.trans_abs_mean_m", "rel. trans err (m)", "min"),
+    MetricSpec("relations.rot_abs_mean_deg", "rel. rot err (°)", "min"),
+    MetricSpec("map.agreement", "map agreement", "max"),
+    MetricSpec("map.occupied_precision", "occ. precision", "max"),
+    MetricSpec("map.occupied_recall", "occ. recall", "max"),
+    MetricSpec("runtime_s", "runtime (s)", "min"),
+    MetricSpec("total_runtime_s", "total runtime (s)", "min"),
+    MetricSpec("scans_per_s", "scans/s", "max"),
+    MetricSpec("realtime_factor", "× real time", "max"),
+    MetricSpec("peak_memory_mb", "peak memory (MB)", "min"),
+    MetricSpec("resample_count", "resamples", None),
+    MetricSpec("neff_mean", "N_eff mean", None),
+    MetricSpec("neff_min", "N_eff min", None),
+)
+METRIC_BY_KEY = {m.key: m for m in METRICS}
+
+# Accuracy metrics tried in order for the "error versus parameter" plots.
+ACCURACY_KEYS = ("trajectory.rmse_m", "relations.trans_abs_mean_m", "map.agreement")
+
+
+def get_metric(metrics: dict[str, Any], key: str) -> float:
+    """A dotted key from a metrics dict as float (NaN when absent)."""
+    node: Any = metrics
+    for part in key.split("."):
+        if not isinstance(node, dict) or part not in node:
+            return float("nan")
+        node = node[part]
+    return as_float(node)

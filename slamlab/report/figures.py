@@ -1,0 +1,278 @@
+"""Matplotlib figures for the reports, returned as `data:` URIs so pages are self-contained.
+
+Why PNG and not SVG: step curves have thousands of points and maps are rasters, so PNG at a
+low DPI is both smaller and faster than SVG. Maps are cropped to the explored area and
+block-reduced before plotting: a 12-run sweep report must build in well under 30 s on two
+cores, and a 4000x4000 grid drawn per run would not.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # reports are built headless (callbacks, CI); never open a window
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+
+from slamlab.report.rundir import LogOddsMap, Trajectory  # noqa: E402
+
+DPI = 80
+# Fixed colours per trajectory kind, so every figure reads the same way.
+KIND_STYLE = {
+    "groundtruth": dict(color="#2ca02c", lw=1.6, label="ground truth"),
+    "odometry": dict(color="#d62728", lw=1.0, ls="--", label="odometry"),
+    "slam": dict(color="#1f77b4", lw=1.4, label="SLAM"),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class MapView:
+    """A map prepared for display: `image` (h, w) grey levels in [0, 1] (1 = free/white,
+    0 = occupied/black, 0.5 = unknown), and the metric extent it covers."""
+
+    image: np.ndarray
+    extent: tuple[float, float, float, float]
+
+
+def fig_to_data_uri(fig: Figure, dpi: int = DPI) -> str:
+    """Render and close a figure; return a base64 PNG data URI for an <img src>."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def png_file_to_data_uri(path: Path, max_px: int = 1200) -> str:
+    """Embed an existing PNG (e.g. texture.png), shrunk so its longest side is <= max_px."""
+    from PIL import Image  # pillow ships with matplotlib
+
+    with Image.open(path) as im:
+        if max(im.size) <= max_px and path.stat().st_size < 3_000_000:
+            data = path.read_bytes()
+        else:
+            im = im.convert("RGBA") if im.mode not in ("RGB", "RGBA", "L") else im
+            im.thumbnail((max_px, max_px))
+            buf = io.BytesIO()
+            im.save(buf, format="PNG", optimize=False)
+            data = buf.getvalue()
+    return "data:image/png;base64," + base64.b64encode(data).decode("ascii")
+
+
+def prepare_map(m: LogOddsMap, max_px: int, trajectories: Sequence[Trajectory] = (), margin_m: float = 1.0) -> MapView:
+    """Crop a log-odds grid to its observed cells (plus the trajectories and a margin) and
+    reduce it by blocks so the longest side is <= max_px. Reduction keeps the most
+    occupied cell of each block so thin walls survive downsampling."""
+    data = m.data
+    h, w = data.shape
+    res = m.resolution_m
+    ox, oy = m.origin_xy
+    known = np.abs(data) > 1e-6
+    rows = np.flatnonzero(known.any(axis=1))
+    cols = np.flatnonzero(known.any(axis=0))
+    if rows.size and cols.size:
+        r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    else:
+        r0, r1, c0, c1 = 0, h, 0, w
+    for tr in trajectories:
+        if tr is None or len(tr) == 0:
+            continue
+        cx = np.floor((tr.xy[:, 0] - ox) / res)
+        cy = np.floor((tr.xy[:, 1] - oy) / res)
+        c0, c1 = min(c0, int(cx.min())), max(c1, int(cx.max()) + 1)
+        r0, r1 = min(r0, int(cy.min())), max(r1, int(cy.max()) + 1)
+    pad = int(math.ceil(margin_m / res))
+    r0, c0 = max(0, r0 - pad), max(0, c0 - pad)
+    r1, c1 = min(h, r1 + pad), min(w, c1 + pad)
+    crop = data[r0:r1, c0:c1]
+    k = max(1, int(math.ceil(max(crop.shape) / max_px)))
+    if k > 1:
+        ph, pw = (-crop.shape[0]) % k, (-crop.shape[1]) % k
+        padded = np.pad(crop, ((0, ph), (0, pw)), constant_values=0.0)
+        blocks = padded.reshape(padded.shape[0] // k, k, padded.shape[1] // k, k)
+        crop = blocks.max(axis=(1, 3))
+        # A block that saw only free cells has max < 0; unknown-only blocks stay 0.
+    p_occ = 1.0 / (1.0 + np.exp(-np.clip(crop.astype(np.float64), -30, 30)))
+    extent = (ox + c0 * res, ox + (c0 + crop.shape[1] * k) * res, oy + r0 * res, oy + (r0 + crop.shape[0] * k) * res)
+    return MapView(image=1.0 - p_occ, extent=extent)
+
+
+def _draw_map(ax, view: MapView | None) -> None:
+    if view is not None:
+        ax.imshow(view.image, cmap="gray", vmin=0.0, vmax=1.0, origin="lower", extent=view.extent, interpolation="nearest")
+    ax.set_aspect("equal")
+
+
+def map_with_trajectories(
+    m: LogOddsMap | None,
+    trajectories: dict[str, Trajectory | None],
+    max_px: int = 700,
+    figsize: tuple[float, float] = (8.0, 7.0),
+    title: str | None = None,
+) -> str:
+    """The map with the SLAM, odometry and ground-truth paths (keys of KIND_STYLE; None
+    entries skipped). Start marked with a circle, end with a square."""
+    trs = {k: v for k, v in trajectories.items() if v is not None and len(v)}
+    fig, ax = plt.subplots(figsize=figsize)
+    _draw_map(ax, prepare_map(m, max_px, list(trs.values())) if m is not None else None)
+    for kind in ("groundtruth", "odometry", "slam"):
+        tr = trs.get(kind)
+        if tr is None:
+            continue
+        style = KIND_STYLE[kind]
+        ax.plot(tr.xy[:, 0], tr.xy[:, 1], **style)
+        ax.plot(tr.xy[-1, 0], tr.xy[-1, 1], "s", color=style["color"], ms=5)
+    if trs:
+        first = next(iter(trs.values()))
+        ax.plot(first.xy[0, 0], first.xy[0, 1], "o", color="black", mfc="none", ms=8, label="start")
+        ax.legend(loc="best", fontsize=9, framealpha=0.85)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    if title:
+        ax.set_title(title)
+    return fig_to_data_uri(fig)
+
+
+def neff_plot(steps, particles: int | None, threshold: float | None) -> str:
+    """N_eff per step over time, resampling events as ticks, and the resampling threshold."""
+    fig, ax = plt.subplots(figsize=(9.0, 3.2))
+    t = steps["t"].to_numpy(dtype=float) if "t" in steps else steps.index.to_numpy(dtype=float)
+    ax.plot(t, steps["neff"].to_numpy(dtype=float), lw=0.9, color="#1f77b4", label="N_eff")
+    if "resampled" in steps:
+        mask = steps["resampled"].astype(bool).to_numpy()
+        if mask.any():
+            ax.plot(t[mask], steps["neff"].to_numpy(dtype=float)[mask], "v", ms=4, color="#ff7f0e",
+                    label=f"resampled ({int(mask.sum())}x)")
+    if threshold is not None:
+        ax.axhline(threshold, color="#d62728", ls="--", lw=1.0, label=f"threshold {threshold:g}")
+    if particles:
+        ax.axhline(particles, color="grey", ls=":", lw=0.8, label=f"N = {particles}")
+        ax.set_ylim(0, particles * 1.05)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("N_eff")
+    ax.legend(loc="lower right", fontsize=8, ncol=4, framealpha=0.85)
+    ax.grid(alpha=0.3)
+    return fig_to_data_uri(fig)
+
+
+def weight_and_time_plot(steps) -> str:
+    """Best particle weight and filter step time over time, stacked with a shared time axis."""
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9.0, 4.6), sharex=True)
+    t = steps["t"].to_numpy(dtype=float) if "t" in steps else steps.index.to_numpy(dtype=float)
+    if "best_weight" in steps:
+        a1.plot(t, steps["best_weight"].to_numpy(dtype=float), lw=0.9, color="#9467bd")
+    a1.set_ylabel("best weight")
+    a1.grid(alpha=0.3)
+    if "step_time_s" in steps:
+        st = steps["step_time_s"].to_numpy(dtype=float) * 1000.0
+        a2.plot(t, st, lw=0.7, color="#8c564b")
+        if st.size:
+            a2.axhline(float(np.median(st)), color="black", ls=":", lw=0.8, label=f"median {np.median(st):.1f} ms")
+            a2.legend(loc="upper right", fontsize=8)
+    a2.set_ylabel("step time (ms)")
+    a2.set_xlabel("time (s)")
+    a2.grid(alpha=0.3)
+    return fig_to_data_uri(fig)
+
+
+def map_grid(items: Sequence[tuple[str, LogOddsMap | None, Trajectory | None]], max_px: int = 220) -> str:
+    """Small multiples: each run's map with its SLAM path, titled by run label."""
+    n = len(items)
+    ncols = min(4, n)
+    nrows = int(math.ceil(n / ncols))
+    fig, axes = plt.subplots(nrows, ncols, figsize=(3.2 * ncols, 3.1 * nrows), squeeze=False)
+    for ax, (label, m, tr) in zip(axes.flat, items):
+        if m is None:
+            ax.text(0.5, 0.5, "no map", ha="center", va="center", transform=ax.transAxes)
+        else:
+            _draw_map(ax, prepare_map(m, max_px, [tr] if tr is not None else []))
+        if tr is not None and len(tr):
+            ax.plot(tr.xy[:, 0], tr.xy[:, 1], color=KIND_STYLE["slam"]["color"], lw=0.9)
+        ax.set_title(label, fontsize=9)
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    fig.tight_layout()
+    return fig_to_data_uri(fig)
+
+
+def trajectories_overlay(
+    background: LogOddsMap | None,
+    background_label: str,
+    runs: Sequence[tuple[str, Trajectory]],
+    groundtruth: Trajectory | None,
+    odometry: Trajectory | None,
+    max_px: int = 700,
+) -> str:
+    """Every run's SLAM path on one map (the background map is named in the title)."""
+    fig, ax = plt.subplots(figsize=(9.0, 7.5))
+    all_tr = [tr for _, tr in runs] + [t for t in (groundtruth, odometry) if t is not None]
+    _draw_map(ax, prepare_map(background, max_px, all_tr) if background is not None else None)
+    if groundtruth is not None:
+        ax.plot(groundtruth.xy[:, 0], groundtruth.xy[:, 1], color="black", lw=2.2, alpha=0.6, label="ground truth")
+    if odometry is not None:
+        ax.plot(odometry.xy[:, 0], odometry.xy[:, 1], color="#d62728", lw=1.0, ls="--", label="odometry")
+    cmap = plt.get_cmap("tab10" if len(runs) <= 10 else "tab20")
+    for i, (label, tr) in enumerate(runs):
+        ax.plot(tr.xy[:, 0], tr.xy[:, 1], lw=1.0, color=cmap(i % cmap.N), label=label)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"background: map of {background_label}" if background is not None else "no map", fontsize=9)
+    ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, framealpha=0.85)
+    return fig_to_data_uri(fig)
+
+
+def neff_overlay(curves: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str) -> str:
+    """N_eff (or N_eff / N) curves of several runs on one axis."""
+    fig, ax = plt.subplots(figsize=(10.0, 3.8))
+    cmap = plt.get_cmap("tab10" if len(curves) <= 10 else "tab20")
+    for i, (label, t, y) in enumerate(curves):
+        ax.plot(t, y, lw=0.8, color=cmap(i % cmap.N), label=label)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8)
+    return fig_to_data_uri(fig)
+
+
+@dataclass(frozen=True, slots=True)
+class Series:
+    """One line of a metric-versus-parameter plot: x values, per-x mean, spread (std across
+    seeds, 0 for a single seed) and the individual points (x, y) behind them."""
+
+    label: str
+    x: np.ndarray
+    mean: np.ndarray
+    std: np.ndarray
+    points_x: np.ndarray
+    points_y: np.ndarray
+
+
+def metric_vs_param(param: str, panels: Sequence[tuple[str, Sequence[Series]]], categorical: list[str] | None = None) -> str:
+    """One row of panels (one per metric) of metric versus a swept parameter. When x is
+    categorical (e.g. resampler names) `categorical` gives the tick labels for x = 0..k-1."""
+    n = len(panels)
+    fig, axes = plt.subplots(1, n, figsize=(4.6 * n, 3.4), squeeze=False)
+    cmap = plt.get_cmap("tab10")
+    for ax, (metric_label, series) in zip(axes.flat, panels):
+        for i, s in enumerate(series):
+            c = cmap(i % 10)
+            ax.scatter(s.points_x, s.points_y, s=12, color=c, alpha=0.45, lw=0)
+            ax.errorbar(s.x, s.mean, yerr=s.std, color=c, marker="o", ms=4, lw=1.2, capsize=3, label=s.label)
+        ax.set_xlabel(param)
+        ax.set_ylabel(metric_label)
+        ax.grid(alpha=0.3)
+        if categorical is not None:
+            ax.set_xticks(range(len(categorical)), categorical, rotation=20, fontsize=8)
+        if len(series) > 1 or (series and series[0].label):
+            ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig_to_data_uri(fig)

@@ -1,0 +1,89 @@
+"""Shared pieces of both reports: the Jinja2 environment, number formatting, atomic writes,
+and the re-run command of a run."""
+
+from __future__ import annotations
+
+import math
+import os
+import shlex
+import tempfile
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import jinja2
+
+TEMPLATE_DIR = Path(__file__).resolve().parent / "templates"
+
+
+def environment() -> jinja2.Environment:
+    """Jinja2 with autoescape on: run names, errors and config values are user text."""
+    env = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(str(TEMPLATE_DIR)),
+        autoescape=jinja2.select_autoescape(["html"], default=True),
+        trim_blocks=True,
+        lstrip_blocks=True,
+        undefined=jinja2.StrictUndefined,  # a typo in a template fails the tests, not silently
+    )
+    env.filters["num"] = fmt_number
+    return env
+
+
+def render(template: str, **context: Any) -> str:
+    """Render a template from slamlab/report/templates."""
+    return environment().get_template(template).render(**context)
+
+
+def fmt_number(v: Any, digits: int = 4) -> str:
+    """Numbers for people: up to `digits` significant digits, ints as ints, NaN/None as a dash."""
+    if v is None:
+        return "–"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "–"
+        if math.isinf(v):
+            return "∞" if v > 0 else "-∞"
+        if v == int(v) and abs(v) < 1e9:
+            return str(int(v)) if abs(v) >= 1 or v == 0 else f"{v:g}"
+        return f"{v:.{digits}g}"
+    return str(v)
+
+
+def atomic_write_text(path: Path, text: str) -> Path:
+    """Write to a temp file beside `path`, then rename: readers never see a half-written
+    page, and an interrupted build leaves the previous report intact."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    return path
+
+
+def now_text() -> str:
+    return datetime.now().astimezone().strftime("%Y-%m-%d %H:%M:%S %Z")
+
+
+def quote_override(item: str) -> str:
+    """Quote one `key=value` override for a POSIX shell."""
+    return shlex.quote(item)
+
+
+def package_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("slamlab")
+    except Exception:  # noqa: BLE001 - not installed (source tree): say so, don't fail
+        return "unknown"

@@ -1,0 +1,207 @@
+"""The per-run report: `report.html` in a run directory, self-contained (images embedded).
+
+Reads only the run's files (docs/RUN_DIRECTORY.md); sections whose inputs are missing are
+omitted, so the same function serves SLAM runs, dead-reckoning runs and failed runs.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from slamlab.report import figures
+from slamlab.report.columns import METRIC_BY_KEY
+from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
+from slamlab.report.rundir import REPORT_FILE, TEXTURE_FILES, RunDir, flatten, load_run
+
+# Names the resampling threshold may have in the resampler config group, tried in order.
+# Values <= 1 are a fraction of the particle count (the usual N_eff < N/2 rule).
+_THRESHOLD_KEYS = ("threshold", "neff_threshold", "ess_threshold", "neff_ratio", "threshold_ratio", "min_neff_ratio")
+
+
+def neff_threshold(config: dict[str, Any], particles: int | None) -> tuple[float | None, str]:
+    """The N_eff below which the filter resamples, in particles, and where it came from."""
+    res = config.get("resampler")
+    if isinstance(res, dict):
+        for key in _THRESHOLD_KEYS:
+            v = res.get(key)
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                if v <= 1.0 and particles:
+                    return float(v) * particles, f"resampler.{key} = {v:g} × N"
+                return float(v), f"resampler.{key} = {v:g}"
+    return None, "threshold not found in the resampler config"
+
+
+def _size_text(n: int) -> str:
+    for unit in ("B", "kB", "MB", "GB"):
+        if n < 1024 or unit == "GB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024  # type: ignore[assignment]
+    return str(n)
+
+
+def _metric_sections(metrics: dict[str, Any]) -> list[tuple[str, list[tuple[str, str]]]]:
+    """metrics.json as labelled tables: top-level values first, then one per sub-dict."""
+    top: list[tuple[str, str]] = []
+    subs: list[tuple[str, list[tuple[str, str]]]] = []
+    for k, v in metrics.items():
+        if k in ("status", "error"):
+            continue
+        if isinstance(v, dict):
+            rows = [(kk, fmt_number(vv) if not isinstance(vv, (dict, list)) else json.dumps(vv))
+                    for kk, vv in flatten(v).items()]
+            subs.append((k, rows))
+        else:
+            spec = METRIC_BY_KEY.get(k)
+            top.append((f"{k}" + (f"  ({spec.label})" if spec and spec.label != k else ""), fmt_number(v)))
+    return ([("run", top)] if top else []) + subs
+
+
+def _cards(run: RunDir) -> list[tuple[str, str]]:
+    """A handful of headline numbers, the ones people compare first."""
+    m = run.metrics
+    out: list[tuple[str, str]] = []
+    traj = m.get("trajectory") if isinstance(m.get("trajectory"), dict) else {}
+    if "rmse_m" in traj:
+        out.append(("ATE RMSE (m)", fmt_number(traj["rmse_m"])))
+    if "odometry_rmse_m" in traj:
+        out.append(("odometry RMSE (m)", fmt_number(traj["odometry_rmse_m"])))
+    rel = m.get("relations") if isinstance(m.get("relations"), dict) else {}
+    if "trans_abs_mean_m" in rel:
+        out.append(("rel. translation error (m)", fmt_number(rel["trans_abs_mean_m"])))
+    for key, label in (("runtime_s", "filter runtime (s)"), ("scans_per_s", "scans/s"),
+                       ("realtime_factor", "× real time"), ("peak_memory_mb", "peak memory (MB)"),
+                       ("resample_count", "resamples"), ("neff_mean", "mean N_eff")):
+        if key in m:
+            out.append((label, fmt_number(m[key])))
+    return out
+
+
+def rerun_commands(run: RunDir) -> tuple[str, str | None]:
+    """(`slamlab <overrides>`, `slamlab --config-path <run>/.hydra --config-name config`).
+
+    The first repeats the user's choices against the current defaults; the second replays
+    the exact resolved config saved by Hydra, which is what bit-for-bit reproduction needs."""
+    overrides = " ".join(shlex.quote(o) for o in run.overrides)
+    cmd = ("slamlab " + overrides).strip()
+    hydra_cfg = run.path / ".hydra" / "config.yaml"
+    exact = None
+    if hydra_cfg.is_file():
+        exact = f"slamlab --config-path {shlex.quote(str(hydra_cfg.parent.resolve()))} --config-name config"
+    return cmd, exact
+
+
+def render_run_report(run: RunDir) -> str:
+    """The report page of one loaded run, as HTML text."""
+    m = run.load_map()
+    trajs = {
+        "slam": run.load_trajectory("slam"),
+        "odometry": run.load_trajectory("odometry"),
+        "groundtruth": run.load_trajectory("groundtruth"),
+    }
+    map_img = None
+    map_note = ""
+    if m is not None or any(v is not None for v in trajs.values()):
+        map_img = figures.map_with_trajectories(m, trajs)
+        shown = [figures.KIND_STYLE[k]["label"] for k in ("slam", "odometry", "groundtruth") if trajs[k] is not None]
+        missing = [figures.KIND_STYLE[k]["label"] for k in ("groundtruth",) if trajs[k] is None]
+        map_note = (
+            "Occupancy map (white free, black occupied, grey unknown), cropped to the explored area"
+            + (f", {m.data.shape[1]}×{m.data.shape[0]} cells of {m.resolution_m:g} m" if m is not None else "")
+            + ". Paths: " + ", ".join(shown) + "; ○ start, ■ end."
+            + (" No ground truth for this dataset." if missing else "")
+        )
+
+    textures = []
+    captions = {
+        "texture.png": "Floor texture from RGB-D along the SLAM trajectory",
+        "texture_over_map.png": "Texture over the occupancy map",
+        "texture_odometry.png": "Texture along the odometry trajectory (for comparison)",
+    }
+    for name in TEXTURE_FILES:
+        p = run.file(name)
+        if p is not None:
+            textures.append({"caption": captions[name], "uri": figures.png_file_to_data_uri(p)})
+
+    steps = run.load_steps()
+    neff_img = weight_img = None
+    neff_note = ""
+    if steps is not None and len(steps) and "neff" in steps:
+        particles = run.particles
+        thr, thr_src = neff_threshold(run.config, particles)
+        neff_img = figures.neff_plot(steps, particles, thr)
+        weight_img = figures.weight_and_time_plot(steps)
+        n_res = int(steps["resampled"].astype(bool).sum()) if "resampled" in steps else 0
+        neff_note = (
+            f"{len(steps)} filter steps; resampled {n_res} times (▼). Dashed red line: resampling threshold"
+            f" ({thr_src})." if thr is not None else
+            f"{len(steps)} filter steps; resampled {n_res} times (▼). No threshold line: {thr_src}."
+        )
+
+    cmd, exact = rerun_commands(run)
+    man = run.manifest
+    info: list[tuple[str, str]] = []
+    for label, value in (
+        ("status", run.status),
+        ("dataset", run.dataset),
+        ("particles", run.particles),
+        ("seed", run.seed),
+        ("overrides", " ".join(run.overrides) or "(none: all defaults)"),
+        ("package version", man.get("package_version") or man.get("version")),
+        ("data fingerprint", man.get("data_fingerprint") or man.get("fingerprint")),
+        ("command line", " ".join(man["command"]) if isinstance(man.get("command"), list) else man.get("command")),
+        ("platform", man.get("platform") if not isinstance(man.get("platform"), dict) else ", ".join(f"{k}={v}" for k, v in man["platform"].items())),
+    ):
+        if value is not None and value != "":
+            info.append((label, str(value)))
+
+    config_source = "manifest.json" if isinstance(man.get("config"), dict) else ".hydra/config.yaml"
+    config_yaml = yaml.safe_dump(run.config, sort_keys=False, default_flow_style=False) if run.config else "(no config saved)"
+
+    files = []
+    for p in sorted(run.path.iterdir()):
+        if p.is_file() and not p.name.startswith("."):
+            files.append((p.name, _size_text(p.stat().st_size)))
+
+    title_bits = [f"Run {run.name}"]
+    if run.dataset:
+        title_bits.append(run.dataset)
+    if run.particles:
+        title_bits.append(f"{run.particles} particles")
+    if run.seed is not None:
+        title_bits.append(f"seed {run.seed}")
+    return render(
+        "run.html",
+        title=" · ".join(title_bits),
+        version=package_version(),
+        generated=now_text(),
+        run=run,
+        cards=_cards(run),
+        map_img=map_img,
+        map_note=map_note,
+        textures=textures,
+        neff_img=neff_img,
+        neff_note=neff_note,
+        weight_img=weight_img,
+        metric_sections=_metric_sections(run.metrics),
+        info=info,
+        rerun_cmd=cmd,
+        rerun_exact_cmd=exact,
+        config_source=config_source,
+        config_yaml=config_yaml,
+        files=files,
+    )
+
+
+def write_run_report(run_dir: Path) -> Path:
+    """Write `run_dir/report.html` (atomically: temp file + rename) and return its path.
+
+    Works for finished, failed and incomplete runs; raises SlamlabError only when
+    `run_dir` is not a run directory at all."""
+    run = load_run(Path(run_dir))
+    html = render_run_report(run)
+    return atomic_write_text(run.path / REPORT_FILE, html)

@@ -1,0 +1,367 @@
+"""Read a run directory (docs/RUN_DIRECTORY.md) into one typed object, and find run
+directories under any folder.
+
+Reports never recompute SLAM: everything here is a file read. Reading is forgiving on
+purpose: a missing optional file (no ground truth, no texture, no steps table) becomes
+None and the report simply omits that section; a run that failed or never finished is
+still loaded, with its error and the tail of its log, so a sweep report can show it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from slamlab.errors import SlamlabError
+
+# File names are a contract (docs/RUN_DIRECTORY.md); keep them in one place.
+METRICS_FILE = "metrics.json"
+MANIFEST_FILE = "manifest.json"
+MAP_FILE = "map_logodds.npz"
+STEPS_CSV = "steps.csv"
+STEPS_PARQUET = "steps.parquet"
+TRAJECTORY_FILE = "trajectory.tum"
+CAUSAL_FILE = "trajectory_causal.tum"
+ODOMETRY_FILE = "odometry.tum"
+GROUNDTRUTH_FILE = "groundtruth.tum"
+TEXTURE_FILES = ("texture.png", "texture_over_map.png", "texture_odometry.png")
+LOG_FILE = "slamlab.log"
+ERROR_FILE = "error.txt"
+REPORT_FILE = "report.html"
+HYDRA_DIR = ".hydra"
+
+STATUS_OK = "ok"
+STATUS_FAILED = "failed"
+STATUS_INCOMPLETE = "incomplete"  # no metrics.json and no recorded error: killed or still running
+
+
+@dataclass(frozen=True, slots=True)
+class Trajectory:
+    """A planar trajectory read from a TUM file: `t` (N,) s, `xy` (N, 2) m, `yaw` (N,) rad."""
+
+    t: np.ndarray
+    xy: np.ndarray
+    yaw: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+@dataclass(frozen=True, slots=True)
+class LogOddsMap:
+    """The raw occupancy grid: `data` (H, W) float32 log-odds, row 0 = lowest y;
+    cell (r, c) covers x in [origin_x + c*res, +res), y in [origin_y + r*res, +res)."""
+
+    data: np.ndarray
+    resolution_m: float
+    origin_xy: tuple[float, float]
+
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        """(x_min, x_max, y_min, y_max) in metres, for matplotlib's imshow."""
+        h, w = self.data.shape
+        ox, oy = self.origin_xy
+        return (ox, ox + w * self.resolution_m, oy, oy + h * self.resolution_m)
+
+
+@dataclass(slots=True)
+class RunDir:
+    """Everything a report shows about one run, loaded from its directory.
+
+    `status` is "ok", "failed" (an error was recorded) or "incomplete" (no metrics and no
+    error: the run was killed or is still running). `config` is the resolved config
+    (manifest.json "config", else .hydra/config.yaml); `overrides` the Hydra task overrides
+    (`key=value` strings). The large arrays (map, trajectories, steps) are loaded lazily by
+    the methods below and cached, so finding and tabulating many runs stays cheap.
+    """
+
+    path: Path
+    status: str
+    error: str | None
+    metrics: dict[str, Any]
+    manifest: dict[str, Any]
+    config: dict[str, Any]
+    overrides: list[str]
+    log_tail: str | None = None
+    _cache: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    # --- convenience -------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        """The directory name (the job number inside a sweep)."""
+        return self.path.name
+
+    @property
+    def ok(self) -> bool:
+        return self.status == STATUS_OK
+
+    @property
+    def particles(self) -> int | None:
+        v = self.metrics.get("particles", self.config.get("particles"))
+        return int(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+
+    @property
+    def seed(self) -> Any:
+        return self.metrics.get("seed", self.config.get("seed"))
+
+    @property
+    def dataset(self) -> str | None:
+        v = self.metrics.get("dataset")
+        if v is None:
+            ds = self.config.get("dataset")
+            if isinstance(ds, dict):
+                v = ds.get("name")
+            elif isinstance(ds, str):
+                v = ds
+        return str(v) if v is not None else None
+
+    def overrides_dict(self) -> dict[str, str]:
+        """Task overrides as {key: value}; Hydra prefixes (+, ++, ~) stripped from keys."""
+        out: dict[str, str] = {}
+        for item in self.overrides:
+            key, sep, value = str(item).partition("=")
+            if not sep:
+                continue
+            out[key.lstrip("+~")] = value
+        return out
+
+    def file(self, name: str) -> Path | None:
+        """The path of an artifact if it exists, else None."""
+        p = self.path / name
+        return p if p.is_file() else None
+
+    # --- lazily loaded arrays ------------------------------------------------------------
+    def _cached(self, key: str, loader):
+        if key not in self._cache:
+            self._cache[key] = loader()
+        return self._cache[key]
+
+    def load_map(self) -> LogOddsMap | None:
+        """The log-odds grid, or None when the run wrote no (readable) map."""
+        return self._cached("map", lambda: read_logodds(self.path / MAP_FILE))
+
+    def load_trajectory(self, which: str = "slam") -> Trajectory | None:
+        """One of "slam", "causal", "odometry", "groundtruth"; None when absent."""
+        files = {
+            "slam": TRAJECTORY_FILE,
+            "causal": CAUSAL_FILE,
+            "odometry": ODOMETRY_FILE,
+            "groundtruth": GROUNDTRUTH_FILE,
+        }
+        name = files[which]
+        return self._cached("traj:" + which, lambda: read_tum(self.path / name))
+
+    def load_steps(self) -> pd.DataFrame | None:
+        """The per-step table (steps.parquet preferred, steps.csv otherwise), or None."""
+        return self._cached("steps", lambda: read_steps(self.path))
+
+
+# --- file readers ------------------------------------------------------------------------
+def read_tum(path: Path) -> Trajectory | None:
+    """Read `timestamp x y z qx qy qz qw` lines ('#' comments allowed); None if the file is
+    missing or holds no poses. Yaw is taken from the quaternion (planar runs: rotation about z)."""
+    if not path.is_file():
+        return None
+    try:
+        arr = np.loadtxt(path, comments="#", ndmin=2, dtype=np.float64)
+    except ValueError as exc:
+        raise SlamlabError(f"{path}: not a TUM trajectory ({exc})") from exc
+    if arr.size == 0:
+        return None
+    if arr.shape[1] != 8:
+        raise SlamlabError(f"{path}: expected 8 columns 'timestamp x y z qx qy qz qw', got {arr.shape[1]}")
+    qx, qy, qz, qw = arr[:, 4], arr[:, 5], arr[:, 6], arr[:, 7]
+    yaw = np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+    return Trajectory(t=arr[:, 0], xy=arr[:, 1:3].copy(), yaw=yaw)
+
+
+def read_logodds(path: Path) -> LogOddsMap | None:
+    """Read map_logodds.npz (`data`, `resolution_m`, `origin_xy`); None if missing."""
+    if not path.is_file():
+        return None
+    with np.load(path) as z:
+        try:
+            data = np.asarray(z["data"], dtype=np.float32)
+            res = float(np.asarray(z["resolution_m"]).reshape(()))
+            origin = np.asarray(z["origin_xy"], dtype=np.float64).reshape(2)
+        except KeyError as exc:
+            raise SlamlabError(f"{path}: missing array {exc} (need data, resolution_m, origin_xy)") from exc
+    return LogOddsMap(data=data, resolution_m=res, origin_xy=(float(origin[0]), float(origin[1])))
+
+
+def read_steps(run_dir: Path) -> pd.DataFrame | None:
+    """The per-step table; Parquet first (typed, faster), CSV as fallback. None if absent."""
+    pq = run_dir / STEPS_PARQUET
+    if pq.is_file():
+        try:
+            return pd.read_parquet(pq)
+        except Exception:  # noqa: BLE001 - a broken parquet falls back to the CSV twin
+            pass
+    csv = run_dir / STEPS_CSV
+    if csv.is_file():
+        return pd.read_csv(csv)
+    return None
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    if not path.is_file():
+        return None
+    try:
+        with path.open(encoding="utf-8") as f:
+            obj = json.load(f)
+    except (OSError, json.JSONDecodeError) as exc:
+        raise SlamlabError(f"{path}: not valid JSON ({exc})") from exc
+    return obj if isinstance(obj, dict) else None
+
+
+def _read_yaml(path: Path) -> Any:
+    if not path.is_file():
+        return None
+    try:
+        with path.open(encoding="utf-8") as f:
+            return yaml.safe_load(f)
+    except (OSError, yaml.YAMLError):
+        return None
+
+
+def _tail(path: Path, max_lines: int = 40, max_bytes: int = 64_000) -> str | None:
+    """The last lines of a text file (bounded read: logs can be long)."""
+    if not path.is_file():
+        return None
+    size = path.stat().st_size
+    with path.open("rb") as f:
+        f.seek(max(0, size - max_bytes))
+        text = f.read().decode("utf-8", errors="replace")
+    lines = text.splitlines()[-max_lines:]
+    return "\n".join(lines) if lines else None
+
+
+def _error_from_log(log: str | None) -> str | None:
+    """Best guess at the error from a log tail: the last traceback's final line or ERROR line."""
+    if not log:
+        return None
+    for line in reversed(log.splitlines()):
+        s = line.strip()
+        if "[ERROR]" in s or "[CRITICAL]" in s or (s and ("Error:" in s or "Exception:" in s)):
+            return s
+    return None
+
+
+def is_run_dir(path: Path) -> bool:
+    """A run directory has a metrics.json or Hydra's saved .hydra/config.yaml."""
+    return (path / METRICS_FILE).is_file() or (path / HYDRA_DIR / "config.yaml").is_file()
+
+
+def load_run(path: Path | str) -> RunDir:
+    """Load one run directory. Raises SlamlabError if `path` is not a run directory or its
+    metrics/manifest are unreadable JSON; missing optional artifacts are fine."""
+    path = Path(path)
+    if not path.is_dir():
+        raise SlamlabError(f"{path}: not a directory")
+    if not is_run_dir(path):
+        raise SlamlabError(f"{path}: not a run directory (no {METRICS_FILE} and no {HYDRA_DIR}/config.yaml)")
+    metrics = _read_json(path / METRICS_FILE)
+    manifest = _read_json(path / MANIFEST_FILE) or {}
+    config = manifest.get("config") if isinstance(manifest.get("config"), dict) else None
+    if config is None:
+        config = _read_yaml(path / HYDRA_DIR / "config.yaml")
+    if not isinstance(config, dict):
+        config = {}
+    overrides = _read_yaml(path / HYDRA_DIR / "overrides.yaml")
+    if not isinstance(overrides, list):
+        overrides = []
+
+    log_tail = _tail(path / LOG_FILE)
+    error_txt = (path / ERROR_FILE).read_text(encoding="utf-8", errors="replace").strip() if (path / ERROR_FILE).is_file() else None
+    if metrics is None:
+        error = error_txt or _error_from_log(log_tail)
+        status = STATUS_FAILED if error else STATUS_INCOMPLETE
+        if status == STATUS_INCOMPLETE:
+            error = f"no {METRICS_FILE}: the run was interrupted or is still running"
+        metrics = {}
+    else:
+        status = str(metrics.get("status", STATUS_OK))
+        error = metrics.get("error") or error_txt
+        if status != STATUS_OK and not error:
+            error = _error_from_log(log_tail) or f"status '{status}' without an error message"
+    return RunDir(
+        path=path,
+        status=status,
+        error=str(error) if error else None,
+        metrics=metrics,
+        manifest=manifest,
+        config=config,
+        overrides=[str(o) for o in overrides],
+        log_tail=log_tail,
+    )
+
+
+def find_run_dirs(paths: list[Path] | tuple[Path, ...]) -> list[Path]:
+    """Every run directory at or under `paths` (a run dir, a sweep dir, or a folder of
+    sweeps), de-duplicated, in a stable order (numeric job numbers sort as numbers).
+
+    Raises SlamlabError naming the path when a path does not exist or holds no runs, so a
+    typo on the command line is not silently an empty report.
+    """
+    found: dict[Path, None] = {}
+    for p in paths:
+        p = Path(p)
+        if not p.exists():
+            raise SlamlabError(f"{p}: no such file or directory")
+        if p.is_file():
+            # Accept a path to a run's metrics.json / report.html: the run is its folder.
+            p = p.parent
+        runs: list[Path] = []
+        if is_run_dir(p):
+            runs.append(p)
+        else:
+            for root, dirs, _files in os.walk(p):
+                r = Path(root)
+                if is_run_dir(r):
+                    runs.append(r)
+                    dirs[:] = []  # a run's subfolders (.hydra, ...) hold no runs
+                    continue
+                # Skip hidden folders and generated report folders: they never hold runs.
+                dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        if not runs:
+            raise SlamlabError(
+                f"{p}: no run directories found (looked for {METRICS_FILE} or {HYDRA_DIR}/config.yaml)"
+            )
+        for r in sorted(runs, key=_natural_key):
+            found.setdefault(r.resolve(), None)
+    return list(found)
+
+
+def _natural_key(p: Path) -> tuple:
+    """Sort '2' before '10' in job numbers."""
+    return tuple((0, int(part), "") if part.isdigit() else (1, 0, part) for part in p.parts)
+
+
+def flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested dict to {"a.b.c": value}; lists are kept as values (compared as a whole)."""
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and v:
+            out.update(flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def as_float(v: Any) -> float:
+    """A metric value as float, NaN when absent or not numeric (bools are not numbers here)."""
+    if isinstance(v, bool) or v is None:
+        return math.nan
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
