@@ -1,0 +1,536 @@
+"""CARMEN logs (`.clf`, optionally gzip/bzip2/xz compressed) as a `Sequence` of scans.
+
+What is read (everything else, `ODOM` included, is skipped):
+- `FLASER n r1..rn x y theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname logger_timestamp`
+  (old front-laser message; `x y theta` is the laser pose, `odom_*` the robot pose).
+- `ROBOTLASER1 laser_type start_angle fov angular_res max_range accuracy remission_mode
+  n r1..rn m e1..em laser_pose_x laser_pose_y laser_pose_theta robot_pose_x robot_pose_y
+  robot_pose_theta tv rv forward_safety_dist side_safety_dist turn_axis ipc_timestamp
+  ipc_hostname logger_timestamp` (angles in rad). When a log has both, ROBOTLASER1 wins
+  (newer tools write FLASER copies of the same scans) and a warning says so.
+- `PARAM name value`: `robot_frontlaser_offset` (m, forward), a front-laser maximum range
+  (`robot_front_laser_max`, `robot_frontlaser_max`, `laser_front_laser_max_range`, ...),
+  `laser_front_laser_fov` / `laser_front_laser_resolution` (deg, FLASER only).
+
+Conventions, checked on the Intel and ACES logs of the Freiburg benchmark:
+- Scans stay in FILE ORDER; `t` is the ipc_timestamp (Intel's clock steps back 631 times).
+- `odom` is the robot pose (odom_x, odom_y, odom_theta / robot_pose_*).
+- FLASER beam angles follow CARMEN's own reader (readlog.c): the first beam is at -90 deg
+  and the step is 1 deg for n = 180 or 181, 0.5 deg for 360/361, 0.25 deg for 400/401,
+  otherwise 180 deg / (n - 1). So n = 180 covers -90..+89 deg (the SICK's 181st beam was
+  dropped) and n = 181 covers -90..+90 deg. The PARAMs above override fov/resolution.
+- `lidar_to_body`: the laser pose minus the robot pose in each record, in the robot frame,
+  when the records carry a consistent offset; otherwise `robot_frontlaser_offset` along x.
+  Intel and ACES carry no offset (laser pose == robot pose in every record, PARAM 0.0),
+  so their mount is the identity.
+- No-return readings: ranges at or above the sensor maximum, <= 0, NaN or inf are
+  `valid = False`. The maximum is, in order: the `max_range_m` argument; the record's own
+  `max_range` (ROBOTLASER1); a max-range PARAM; else detected from the data: the largest
+  reading counts as the "no return" value when it is a saturation plateau (>= 0.1 % of all
+  readings, at least 2). Intel saturates at 81.83 m (2.8 % of readings), ACES at 50.00 m
+  (0.8 %). A log without such a plateau keeps all finite positive readings.
+"""
+
+from __future__ import annotations
+
+import bz2
+import gzip
+import lzma
+import re
+import warnings
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from slamlab.errors import DataError
+from slamlab.frames import Relations, ScanFrame, Sequence
+from slamlab.geometry import FloatArray, rot_z, se2_between, trans, wrap_angle
+
+_FLASER_TAIL = (
+    "x", "y", "theta", "odom_x", "odom_y", "odom_theta",
+    "ipc_timestamp", "ipc_hostname", "logger_timestamp",
+)  # fmt: skip
+_RL1_HEAD = (
+    "laser_type", "start_angle", "fov", "angular_res", "max_range", "accuracy",
+    "remission_mode", "num_readings",
+)  # fmt: skip
+_RL1_TAIL = (
+    "laser_pose_x", "laser_pose_y", "laser_pose_theta",
+    "robot_pose_x", "robot_pose_y", "robot_pose_theta",
+    "tv", "rv", "forward_safety_dist", "side_safety_dist", "turn_axis",
+    "ipc_timestamp", "ipc_hostname", "logger_timestamp",
+)  # fmt: skip
+_RELATION_FIELDS = ("t1", "t2", "x", "y", "z", "roll", "pitch", "yaw")
+
+_MAX_RANGE_PARAM = re.compile(r"^(robot|laser)_front_?laser_max(imum)?(_?range)?$")
+_OFFSET_PARAM = "robot_frontlaser_offset"
+_FOV_PARAM = "laser_front_laser_fov"
+_RES_PARAM = "laser_front_laser_resolution"
+
+# A saturation plateau: the largest reading repeats in at least this share of all readings.
+_PLATEAU_FRACTION = 1e-3
+# Laser-minus-robot offsets below this (m, rad) are print noise, i.e. "no offset recorded";
+# offsets varying more than this across records are not a rigid mount.
+_OFFSET_NOISE = 1e-3
+_OFFSET_SPREAD = 1e-2
+
+_MAGIC = {b"\x1f\x8b": "gzip", b"BZh": "bzip2", b"\xfd7zXZ\x00": "xz"}
+_SUFFIX_KIND = {".gz": "gzip", ".bz2": "bzip2", ".xz": "xz"}
+_OPENERS = {"gzip": gzip.open, "bzip2": bz2.open, "xz": lzma.open}
+
+
+# ----------------------------------------------------------------------------- file access
+
+
+def _sniff(head: bytes) -> str:
+    for magic, kind in _MAGIC.items():
+        if head.startswith(magic):
+            return kind
+    return "plain"
+
+
+def _read_text(path: Path) -> str:
+    """The whole log as text, decompressed by magic bytes (the suffix must agree)."""
+    if not path.exists():
+        raise DataError(path, "file not found")
+    if not path.is_file():
+        raise DataError(path, "not a regular file")
+    with path.open("rb") as f:
+        head = f.read(6)
+    kind = _sniff(head)
+    named = _SUFFIX_KIND.get(path.suffix.lower(), "plain")
+    if named != "plain" and kind != named:
+        raise DataError(path, f"named {path.suffix} but is not {named} data (starts with {head!r})")
+    if kind == "plain":
+        data = path.read_bytes()
+    else:
+        chunks: list[bytes] = []
+        lines_done = 0
+        try:
+            with _OPENERS[kind](path, "rb") as f:
+                while chunk := f.read(1 << 22):
+                    chunks.append(chunk)
+                    lines_done += chunk.count(b"\n")
+        except (EOFError, OSError, zlib.error, lzma.LZMAError) as exc:
+            raise DataError(
+                path,
+                f"{kind} stream is truncated or corrupt ({exc}); "
+                f"{lines_done} complete lines were read before it broke",
+                record=f"line {lines_done + 1}",
+            ) from None
+        data = b"".join(chunks)
+    # latin-1 never fails to decode; stray bytes then surface as "not a number" errors.
+    return data.decode("latin-1")
+
+
+def _log_stem(path: Path) -> str:
+    """`intel.clf.bz2` -> `intel`."""
+    name = path.name
+    for suffix in (".gz", ".bz2", ".xz"):
+        if name.lower().endswith(suffix):
+            name = name[: -len(suffix)]
+            break
+    for suffix in (".clf", ".log"):
+        if name.lower().endswith(suffix):
+            name = name[: -len(suffix)]
+            break
+    return name
+
+
+# ----------------------------------------------------------------------------- relations
+
+
+def load_relations(path: str | Path) -> Relations:
+    """Read a benchmark relations file: lines `t1 t2 x y z roll pitch yaw` (s, m, rad).
+
+    Returns `Relations(t1, t2, rel=(x, y, yaw), path)`; z, roll and pitch (0 in the
+    benchmark) are read but dropped. Blank lines and `#` comments are skipped. Any other
+    line that is not 8 finite numbers raises DataError naming the line and field.
+    """
+    path = Path(path)
+    text = _read_text(path)
+    rows: list[list[float]] = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        parts = line.split()
+        if not parts or parts[0].startswith("#"):
+            continue
+        record = f"line {lineno}"
+        if len(parts) != len(_RELATION_FIELDS):
+            fld = _RELATION_FIELDS[len(parts)] if len(parts) < len(_RELATION_FIELDS) else "yaw"
+            what = "missing" if len(parts) < len(_RELATION_FIELDS) else "followed by extra values"
+            raise DataError(path, f"{what}: expected 8 values (t1 t2 x y z roll pitch yaw), got {len(parts)}",
+                            record=record, field=fld)  # fmt: skip
+        row = []
+        for name, tok in zip(_RELATION_FIELDS, parts):
+            try:
+                value = float(tok)
+            except ValueError:
+                raise DataError(path, f"expected a number, got {tok!r}", record=record, field=name) from None
+            if not np.isfinite(value):
+                raise DataError(path, f"expected a finite number, got {tok!r}", record=record, field=name)
+            row.append(value)
+        rows.append(row)
+    if not rows:
+        raise DataError(path, "no relations in file")
+    arr = np.asarray(rows, dtype=np.float64)
+    return Relations(t1=arr[:, 0], t2=arr[:, 1], rel=arr[:, [2, 3, 7]].copy(), path=str(path))
+
+
+# ----------------------------------------------------------------------------- log parsing
+
+
+@dataclass
+class _Group:
+    """Laser records of one message type and shape, gathered before one numpy conversion."""
+
+    kind: str
+    shape: tuple[int, ...]  # (n,) for FLASER, (n, m) for ROBOTLASER1
+    linenos: list[int] = field(default_factory=list)
+    tokens: list[str] = field(default_factory=list)
+
+
+@dataclass
+class _Param:
+    value: str
+    lineno: int
+
+
+def _flaser_field(n: int, j: int) -> str:
+    """Name of token j of a FLASER line with n readings."""
+    if j == 0:
+        return "message"
+    if j == 1:
+        return "num_readings"
+    if j < n + 2:
+        return f"range[{j - 2}]"
+    return _FLASER_TAIL[min(j - n - 2, len(_FLASER_TAIL) - 1)]
+
+
+def _rl1_field(n: int, m: int, j: int) -> str:
+    """Name of token j of a ROBOTLASER1 line with n readings and m remissions."""
+    if j == 0:
+        return "message"
+    if j <= 8:
+        return _RL1_HEAD[j - 1]
+    if j < 9 + n:
+        return f"range[{j - 9}]"
+    if j == 9 + n:
+        return "num_remissions"
+    if j < 10 + n + m:
+        return f"remission[{j - 10 - n}]"
+    return _RL1_TAIL[min(j - 10 - n - m, len(_RL1_TAIL) - 1)]
+
+
+def _count(path: Path, parts: list[str], j: int, name: str, record: str) -> int:
+    """A non-negative integer count field (num_readings, num_remissions)."""
+    if j >= len(parts):
+        raise DataError(path, "missing", record=record, field=name)
+    try:
+        value = int(parts[j])
+    except ValueError:
+        raise DataError(path, f"expected a non-negative integer, got {parts[j]!r}", record=record, field=name) from None
+    if value < 0:
+        raise DataError(path, f"expected a non-negative integer, got {value}", record=record, field=name)
+    return value
+
+
+def _check_length(path: Path, parts: list[str], need: int, record: str, names, counts: str) -> None:
+    if len(parts) == need:
+        return
+    if len(parts) < need:
+        raise DataError(path, f"missing: the line has {len(parts)} values but {counts} needs {need}",
+                        record=record, field=names(len(parts)))  # fmt: skip
+    raise DataError(path, f"followed by {len(parts) - need} unexpected values ({counts} needs {need})",
+                    record=record, field=names(need - 1))  # fmt: skip
+
+
+def _scan_lines(path: Path, lines: list[str]) -> tuple[dict[tuple, _Group], dict[str, _Param]]:
+    """One pass over the log: group laser records by shape, collect PARAMs."""
+    groups: dict[tuple, _Group] = {}
+    params: dict[str, _Param] = {}
+    for lineno, line in enumerate(lines, 1):
+        first = line[:1]
+        if first == "F" and line.startswith("FLASER"):
+            parts = line.split()
+            if parts[0] != "FLASER":
+                continue
+            record = f"line {lineno} (FLASER)"
+            n = _count(path, parts, 1, "num_readings", record)
+            _check_length(path, parts, n + 11, record, lambda j: _flaser_field(n, j), f"num_readings={n}")
+            g = groups.get(("FLASER", n))
+            if g is None:
+                g = groups[("FLASER", n)] = _Group("FLASER", (n,))
+            g.linenos.append(lineno)
+            # ranges, six pose values, ipc_timestamp; skip the host name; logger_timestamp.
+            g.tokens.extend(parts[2 : n + 9])
+            g.tokens.append(parts[n + 10])
+        elif first == "R" and line.startswith("ROBOTLASER1"):
+            parts = line.split()
+            if parts[0] != "ROBOTLASER1":
+                continue
+            record = f"line {lineno} (ROBOTLASER1)"
+            n = _count(path, parts, 8, "num_readings", record)
+            m = _count(path, parts, 9 + n, "num_remissions", record)
+            _check_length(path, parts, n + m + 24, record, lambda j: _rl1_field(n, m, j),
+                          f"num_readings={n}, num_remissions={m}")  # fmt: skip
+            g = groups.get(("ROBOTLASER1", n, m))
+            if g is None:
+                g = groups[("ROBOTLASER1", n, m)] = _Group("ROBOTLASER1", (n, m))
+            g.linenos.append(lineno)
+            g.tokens.extend(parts[1 : n + m + 22])
+            g.tokens.append(parts[n + m + 23])
+        elif first == "P" and line.startswith("PARAM"):
+            parts = line.split()
+            if parts[0] == "PARAM" and len(parts) >= 3:
+                params[parts[1]] = _Param(parts[2], lineno)
+    return groups, params
+
+
+def _to_numbers(path: Path, lines: list[str], g: _Group) -> np.ndarray:
+    """The group's tokens as an (L, width) float64 array; on failure find the bad field."""
+    width = len(g.tokens) // len(g.linenos)
+    try:
+        return np.array(g.tokens, dtype=np.float64).reshape(len(g.linenos), width)
+    except ValueError:
+        pass
+    # Slow path, only for a broken file: re-split the lines of this group to name the field.
+    for lineno in g.linenos:
+        parts = lines[lineno - 1].split()
+        if g.kind == "FLASER":
+            n = g.shape[0]
+            idx = [*range(2, n + 9), n + 10]
+            names = lambda j: _flaser_field(n, j)  # noqa: E731
+        else:
+            n, m = g.shape
+            idx = [*range(1, n + m + 22), n + m + 23]
+            names = lambda j: _rl1_field(n, m, j)  # noqa: E731
+        for j in idx:
+            try:
+                float(parts[j])
+            except ValueError:
+                raise DataError(path, f"expected a number, got {parts[j]!r}",
+                                record=f"line {lineno} ({g.kind})", field=names(j)) from None  # fmt: skip
+    raise AssertionError("numpy rejected a value that float() accepts")  # pragma: no cover
+
+
+def _require_finite(path: Path, g: _Group, values: np.ndarray, names: list[str]) -> None:
+    """Poses and timestamps must be finite (ranges may be NaN: those beams become invalid)."""
+    bad = ~np.isfinite(values)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise DataError(path, f"expected a finite number, got {values[row, col]}",
+                        record=f"line {g.linenos[row]} ({g.kind})", field=names[col])  # fmt: skip
+
+
+def _param_float(path: Path, params: dict[str, _Param], name: str) -> float | None:
+    p = params.get(name)
+    if p is None:
+        return None
+    try:
+        value = float(p.value)
+    except ValueError:
+        raise DataError(path, f"expected a number, got {p.value!r}", record=f"line {p.lineno} (PARAM {name})",
+                        field="param_value") from None  # fmt: skip
+    if not np.isfinite(value):
+        raise DataError(path, f"expected a finite number, got {p.value!r}", record=f"line {p.lineno} (PARAM {name})",
+                        field="param_value")  # fmt: skip
+    return value
+
+
+def flaser_beam_angles(n: int, fov_deg: float | None = None, resolution_deg: float | None = None) -> np.ndarray:
+    """Beam angles (rad, float32, CCW from the laser's +x) of an n-reading FLASER scan.
+
+    CARMEN's convention: the first beam at -fov/2 (default -90 deg), then fixed steps of
+    `resolution_deg` (default: 1 deg for n = 180/181, 0.5 for 360/361, 0.25 for 400/401,
+    else 180/(n-1)). n = 180 thus spans -90..+89 deg, n = 181 spans -90..+90 deg.
+    """
+    if resolution_deg is None:
+        resolution_deg = {180: 1.0, 181: 1.0, 360: 0.5, 361: 0.5, 400: 0.25, 401: 0.25}.get(n)
+        if resolution_deg is None:
+            resolution_deg = 180.0 / (n - 1) if n > 1 else 0.0
+    start_deg = -0.5 * fov_deg if fov_deg is not None else -90.0
+    return np.radians(start_deg + resolution_deg * np.arange(n)).astype(np.float32)
+
+
+def _detect_no_return(ranges: np.ndarray) -> float | None:
+    """The saturation value of a laser (m), or None when the data shows no plateau."""
+    r = ranges[np.isfinite(ranges) & (ranges > 0)]
+    if r.size == 0:
+        return None
+    top = float(r.max())
+    at_top = int(np.count_nonzero(r >= top))
+    return top if at_top >= max(2, _PLATEAU_FRACTION * r.size) else None
+
+
+def _mount(path: Path, laser: np.ndarray, robot: np.ndarray, offset_x: float | None) -> np.ndarray:
+    """(4, 4) lidar-to-body transform, read-only, shared by all scans of the log.
+
+    Uses the laser-minus-robot pose of the records when they carry a rigid offset, else
+    the PARAM forward offset, else the identity.
+    """
+    off = se2_between(robot, laser)
+    off[:, 2] = wrap_angle(off[:, 2])
+    med = np.median(off, axis=0)
+    if np.abs(off).max(initial=0.0) < _OFFSET_NOISE:
+        T = trans(x=offset_x or 0.0)
+    elif np.abs(off - med).max() < _OFFSET_SPREAD:
+        T = trans(x=float(med[0]), y=float(med[1])) @ rot_z(float(med[2]))
+    else:
+        warnings.warn(
+            f"{path}: laser and robot poses in the records differ by a varying amount "
+            f"(not a rigid mount); using robot_frontlaser_offset = {offset_x or 0.0} m instead",
+            stacklevel=3,
+        )
+        T = trans(x=offset_x or 0.0)
+    T.flags.writeable = False
+    return T
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+def load_carmen(
+    path: str | Path,
+    relations: str | Path | None = None,
+    max_range_m: float | None = None,
+    name: str | None = None,
+) -> Sequence:
+    """Load a CARMEN log (`.clf`, `.clf.gz`, `.clf.bz2`, `.clf.xz`) as a `Sequence`.
+
+    path: the log. relations: a relations file (default: `<stem>.relations` beside the log,
+    e.g. `intel.clf.bz2` -> `intel.relations`, if it exists). max_range_m: readings at or
+    above this (m) mean "no return" (default: the record's max_range, a PARAM, or the
+    detected saturation value; see the module docstring). name: the sequence name
+    (default: the file stem, `intel`).
+
+    Scans come in file order with `t` = ipc_timestamp (s), `odom` = robot pose
+    (m, m, rad), float32 ranges (m) and angles (rad); roll/pitch are 0. Arrays in the
+    frames are read-only views into per-log blocks. `Sequence.max_range_m` is the sensor's
+    no-return range. NaN/inf readings become invalid beams and raise one warning with
+    their count. Raises DataError (file, line, field) for unreadable input.
+    """
+    path = Path(path)
+    text = _read_text(path)
+    lines = text.splitlines()
+    groups, params = _scan_lines(path, lines)
+
+    kinds = {key[0] for key in groups}
+    if not groups:
+        raise DataError(path, "no laser scans (FLASER or ROBOTLASER1 lines) in the log",
+                        record=f"{len(lines)} lines read")  # fmt: skip
+    if kinds == {"FLASER", "ROBOTLASER1"}:
+        n_fl = sum(len(g.linenos) for k, g in groups.items() if k[0] == "FLASER")
+        warnings.warn(f"{path}: has ROBOTLASER1 and FLASER scans; using ROBOTLASER1, ignoring {n_fl} FLASER lines",
+                      stacklevel=2)  # fmt: skip
+        groups = {k: g for k, g in groups.items() if k[0] == "ROBOTLASER1"}
+
+    offset_x = _param_float(path, params, _OFFSET_PARAM)
+    fov_deg = _param_float(path, params, _FOV_PARAM)
+    res_deg = _param_float(path, params, _RES_PARAM)
+    param_max = None
+    for pname in params:
+        if _MAX_RANGE_PARAM.match(pname):
+            param_max = _param_float(path, params, pname)
+    if max_range_m is not None and not (np.isfinite(max_range_m) and max_range_m > 0):
+        raise ValueError(f"max_range_m must be a positive number of metres, got {max_range_m}")
+
+    # Parse every group first: the saturation value is a property of the whole log.
+    parsed = []  # (group, ranges f64 (L, n), laser (L, 3), robot (L, 3), t (L,), record max or None, angles)
+    for g in groups.values():
+        a = _to_numbers(path, lines, g)
+        if g.kind == "FLASER":
+            n = g.shape[0]
+            tail = a[:, n:]  # x y theta odom_x odom_y odom_theta ipc logger
+            _require_finite(path, g, tail, [f for f in _FLASER_TAIL if f != "ipc_hostname"])
+            ranges = a[:, :n]
+            laser, robot, t = tail[:, 0:3], tail[:, 3:6], tail[:, 6]
+            rec_max = None
+            angles = _readonly(flaser_beam_angles(n, fov_deg, res_deg))
+        else:
+            n, m = g.shape
+            head = a[:, :8]
+            _require_finite(path, g, head, list(_RL1_HEAD))
+            tail = a[:, n + m + 9 :]
+            _require_finite(path, g, tail, [f for f in _RL1_TAIL if f != "ipc_hostname"])
+            ranges = a[:, 8 : 8 + n]
+            laser, robot, t = tail[:, 0:3], tail[:, 3:6], tail[:, 11]
+            rec_max = np.where(head[:, 4] > 0, head[:, 4], np.nan)
+            ang = head[:, 1:2] + head[:, 3:4] * np.arange(n)
+            # One shared angle array when every record has the same geometry (the usual case).
+            angles = _readonly(ang[0].astype(np.float32)) if np.all(ang == ang[:1]) else _readonly(ang.astype(np.float32))
+        parsed.append((g, ranges, laser, robot, t, rec_max, angles))
+
+    all_ranges = np.concatenate([p[1].reshape(-1) for p in parsed])
+    fallback_max = max_range_m if max_range_m is not None else param_max
+    if fallback_max is None:
+        fallback_max = _detect_no_return(all_ranges)
+    nonfinite = int(np.count_nonzero(~np.isfinite(all_ranges)))
+
+    linenos = np.concatenate([np.asarray(p[0].linenos) for p in parsed])
+    order = np.argsort(linenos, kind="stable")
+    index_of = np.empty_like(order)
+    index_of[order] = np.arange(order.size)  # position in file order of each parsed record
+    scans: list[ScanFrame | None] = [None] * order.size
+    seq_max = 0.0
+    base = 0
+    for g, ranges, laser, robot, t, rec_max, angles in parsed:
+        L = ranges.shape[0]
+        if max_range_m is not None:
+            limit = np.full(L, float(max_range_m))
+        elif rec_max is not None:
+            limit = np.where(np.isnan(rec_max), np.inf if fallback_max is None else fallback_max, rec_max)
+        else:
+            limit = np.full(L, np.inf if fallback_max is None else fallback_max)
+        with np.errstate(invalid="ignore"):
+            valid = _readonly(np.isfinite(ranges) & (ranges > 0) & (ranges < limit[:, None]))
+        finite_limit = limit[np.isfinite(limit)]
+        if finite_limit.size:
+            seq_max = max(seq_max, float(finite_limit.max()))
+        else:
+            r = ranges[valid]
+            seq_max = max(seq_max, float(r.max()) if r.size else 0.0)
+        r32 = _readonly(ranges.astype(np.float32))
+        odom = _readonly(np.ascontiguousarray(robot))
+        times = t.tolist()
+        T = _mount(path, laser, robot, offset_x)
+        per_record_angles = angles.ndim == 2
+        for k in range(L):
+            i = int(index_of[base + k])
+            scans[i] = ScanFrame(
+                index=i,
+                t=times[k],
+                odom=odom[k],
+                ranges=r32[k],
+                angles=angles[k] if per_record_angles else angles,
+                valid=valid[k],
+                lidar_to_body=T,
+            )
+        base += L
+
+    if nonfinite:
+        warnings.warn(f"{path}: {nonfinite} NaN/inf range readings marked as invalid beams", RuntimeWarning,
+                      stacklevel=2)  # fmt: skip
+
+    rel_path: Path | None
+    if relations is not None:
+        rel_path = Path(relations)
+    else:
+        guess = path.parent / f"{_log_stem(path)}.relations"
+        rel_path = guess if guess.is_file() else None
+    rel = load_relations(rel_path) if rel_path is not None else None
+
+    sources = [str(path)] + ([str(rel_path)] if rel_path is not None else [])
+    seq = Sequence(
+        name=name if name is not None else _log_stem(path),
+        scans=scans,  # type: ignore[arg-type]  # every slot was filled above
+        body_height_m=None,
+        sources=sources,
+        relations=rel,
+    )
+    if seq_max > 0:  # else keep the Sequence default
+        seq.max_range_m = seq_max
+    return seq

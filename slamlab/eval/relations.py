@@ -1,0 +1,120 @@
+"""The relation-based SLAM accuracy metric of Kuemmerle et al. (Autonomous Robots, 2009).
+
+A relation says "the robot pose at time t2, seen from the robot pose at time t1, is `rel`".
+For an estimated trajectory P (one SE(2) pose per scan) each relation gives an error
+
+    e = inv(P(t1)) (+) P(t2)        the estimate's relative motion
+    d = inv(rel) (+) e              what is left once the reference motion is removed
+
+translational error |d.xy| (m), rotational error |wrap(d.theta)| (deg). The summary is the
+mean and sample standard deviation (ddof=1, which reproduces the published raw-odometry
+reference values) of the absolute errors and of their squares.
+
+Poses are looked up by timestamp, never by index: some logs (Intel) have clocks that step
+back, so the scan order and the time order differ.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slamlab.frames import Relations
+from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, wrap_angle
+
+# Relation files and CARMEN logs both print times with 6 decimals, so matching times are
+# equal once parsed; the tolerance only absorbs conversions through other tools.
+DEFAULT_TIME_TOL_S = 1e-6
+
+
+def match_times(times: np.ndarray, query: np.ndarray, tol_s: float = DEFAULT_TIME_TOL_S) -> np.ndarray:
+    """Index into `times` (s, any order) of the entry equal to each `query` time (s).
+
+    Two times match when they differ by at most `tol_s` seconds (widened to a few float64
+    ulps for large epoch times). Where several scans share a time the first in file order
+    wins. Raises ValueError naming the unmatched times when any query has no match.
+    """
+    times = np.asarray(times, dtype=np.float64).reshape(-1)
+    query = np.asarray(query, dtype=np.float64).reshape(-1)
+    if times.size == 0:
+        if query.size:
+            raise ValueError(f"no poses to match {query.size} relation times against")
+        return np.zeros(0, dtype=np.intp)
+    order = np.argsort(times, kind="stable")  # stable: equal times keep file order
+    sorted_t = times[order]
+    pos = np.searchsorted(sorted_t, query, side="left")
+    # The nearest scan time is either at pos (first >= q) or just before it.
+    lo = np.clip(pos - 1, 0, sorted_t.size - 1)
+    hi = np.clip(pos, 0, sorted_t.size - 1)
+    pick_hi = np.abs(sorted_t[hi] - query) <= np.abs(sorted_t[lo] - query)
+    best = np.where(pick_hi, hi, lo)
+    # A run of equal times: step back to its first member so file order decides.
+    best = np.searchsorted(sorted_t, sorted_t[best], side="left")
+    tol = np.maximum(tol_s, 8.0 * np.spacing(np.abs(query)))
+    ok = np.abs(sorted_t[best] - query) <= tol
+    if not np.all(ok):
+        missing = query[~ok]
+        shown = ", ".join(f"{t:.6f}" for t in missing[:5])
+        more = f" (and {missing.size - 5} more)" if missing.size > 5 else ""
+        raise ValueError(
+            f"{missing.size} relation time(s) have no pose within {tol_s:g} s: {shown}{more}; "
+            "every scan of the log needs a pose"
+        )
+    return order[best]
+
+
+def relation_residuals(
+    times: np.ndarray, poses: np.ndarray, relations: Relations, time_tol_s: float = DEFAULT_TIME_TOL_S
+) -> tuple[FloatArray, FloatArray]:
+    """Per-relation errors: (translational m, rotational rad, signed in [-pi, pi)), shape (M,).
+
+    `times` (N,) are the scan times (s) and `poses` (N, 3) the estimated (x m, y m, theta rad)
+    at those scans, in any order (typically file order).
+    """
+    times = np.asarray(times, dtype=np.float64).reshape(-1)
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != 3:
+        raise ValueError(f"poses must have shape (N, 3), got {poses.shape}")
+    if poses.shape[0] != times.size:
+        raise ValueError(f"{times.size} times but {poses.shape[0]} poses")
+    rel = np.asarray(relations.rel, dtype=np.float64).reshape(-1, 3)
+    i1 = match_times(times, relations.t1, time_tol_s)
+    i2 = match_times(times, relations.t2, time_tol_s)
+    est = se2_between(poses[i1], poses[i2])
+    d = se2_compose(se2_inverse(rel), est)
+    return np.hypot(d[:, 0], d[:, 1]), wrap_angle(d[:, 2])
+
+
+def relation_errors(
+    times: np.ndarray, poses: np.ndarray, relations: Relations, time_tol_s: float = DEFAULT_TIME_TOL_S
+) -> dict[str, float]:
+    """Kuemmerle et al. relation errors of a trajectory, as plain Python numbers.
+
+    Keys: count (int, relations used); trans_abs_mean_m, trans_abs_std_m, trans_sq_mean_m2, trans_sq_std_m2
+    (metres); rot_abs_mean_deg, rot_abs_std_deg, rot_sq_mean_deg2, rot_sq_std_deg2
+    (degrees). Standard deviations are sample (ddof=1; NaN for a single relation). With no
+    relations the statistics are NaN. Raises ValueError if a relation time has no pose in `times`.
+    """
+    trans_m, rot_rad = relation_residuals(times, poses, relations, time_tol_s)
+    rot_deg = np.degrees(np.abs(rot_rad))
+
+    def stats(values: np.ndarray) -> tuple[float, float]:
+        if values.size == 0:
+            return float("nan"), float("nan")
+        std = float(np.std(values, ddof=1)) if values.size > 1 else float("nan")
+        return float(np.mean(values)), std
+
+    t_mean, t_std = stats(trans_m)
+    t2_mean, t2_std = stats(trans_m**2)
+    r_mean, r_std = stats(rot_deg)
+    r2_mean, r2_std = stats(rot_deg**2)
+    return {
+        "count": int(trans_m.size),
+        "trans_abs_mean_m": t_mean,
+        "trans_abs_std_m": t_std,
+        "trans_sq_mean_m2": t2_mean,
+        "trans_sq_std_m2": t2_std,
+        "rot_abs_mean_deg": r_mean,
+        "rot_abs_std_deg": r_std,
+        "rot_sq_mean_deg2": r2_mean,
+        "rot_sq_std_deg2": r2_std,
+    }
