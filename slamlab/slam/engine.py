@@ -1,0 +1,250 @@
+"""The particle-filter SLAM loop: predict, match + weigh, map from the best, resample.
+
+    run_slam(sequence, cfg) -> SlamResult
+
+Per processed step (see `steps.select_steps`):
+1. predict: every particle moves by the odometry increment since the last step (+ noise,
+   `motion/`);
+2. update: each particle's scan is matched against the shared map (`matcher/`), optionally
+   moving the particle to its best offset; the match score updates its weight
+   (`weighting/`);
+3. map: the scan of the highest-weight particle is ray-cast into the log-odds grid (`map/`);
+4. resample (`resampler/`) when N_eff = 1 / sum(w^2) < threshold * N.
+Each particle's pose per step and its parent index are kept, so the final best particle's
+own path (its ancestry) is the smoothed trajectory. `mode: odometry` skips 1, 2 and 4:
+the map is built along the raw odometry (dead reckoning, for comparison).
+
+One `numpy.random.Generator(PCG64(seed))` drives all randomness and the numba kernels run
+serial loops, so the same config and seed give a bit-identical trajectory.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from slamlab.errors import ConfigError
+from slamlab.frames import Sequence
+from slamlab.geometry import se2_between, se2_compose
+from slamlab.slam.grid import MapSettings, OccupancyGrid
+from slamlab.slam.matcher import Matcher
+from slamlab.slam.motion import MotionModel
+from slamlab.slam.resample import Resampler
+from slamlab.slam.result import SlamResult
+from slamlab.slam.scan import points_to_world, scan_to_points
+from slamlab.slam.steps import fill_between_steps, select_steps
+from slamlab.slam.weighting import Weighting, effective_sample_size
+
+log = logging.getLogger(__name__)
+
+MODES = ("slam", "odometry")
+
+
+@dataclass(frozen=True, slots=True)
+class Components:
+    """The validated pieces of one run, built from the config groups."""
+
+    particles: int
+    seed: int
+    mode: str
+    every: int
+    min_distance_m: float
+    min_angle_rad: float
+    skip_static_start: bool
+    max_scans: int | None
+    motion: MotionModel
+    weighting: Weighting
+    resampler: Resampler
+    matcher: Matcher
+    map: MapSettings
+
+
+def build_component(cfg: DictConfig, group: str, base: type) -> object:
+    """Instantiate `cfg[group]` (a YAML with `_target_`) and check it is a `base`.
+
+    Errors raised by the component's own checks surface as ConfigError naming the full key;
+    an unknown or broken `_target_` as ConfigError(`group._target_`)."""
+    node = cfg.get(group) if isinstance(cfg, DictConfig) else None
+    if node is None or "_target_" not in node:
+        raise ConfigError(group, "missing: choose one of the files in conf/%s/" % group)
+    try:
+        obj = instantiate(node)
+    except Exception as exc:  # hydra wraps constructor errors: find ours in the chain
+        e: BaseException | None = exc
+        while e is not None:
+            if isinstance(e, ConfigError):
+                raise e from None
+            e = e.__cause__ or e.__context__
+        raise ConfigError(f"{group}._target_", f"cannot build {node.get('_target_')!r}: {exc}") from exc
+    if not isinstance(obj, base):
+        raise ConfigError(f"{group}._target_", f"{node.get('_target_')!r} is not a {base.__name__}")
+    return obj
+
+
+def _int(cfg: DictConfig, key: str, minimum: int, default: int | None = None, allow_none: bool = False) -> int | None:
+    v = OmegaConf.select(cfg, key, default=default)
+    if v is None and allow_none:
+        return None
+    if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
+        raise ConfigError(key, f"must be an integer >= {minimum}{' or null' if allow_none else ''}, got {v!r}")
+    return int(v)
+
+
+def _float(cfg: DictConfig, key: str, default: float) -> float:
+    v = OmegaConf.select(cfg, key, default=default)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
+        raise ConfigError(key, f"must be a number >= 0, got {v!r}")
+    return float(v)
+
+
+def validate_config(cfg: DictConfig) -> Components:
+    """Check every value the engine uses and build the components; raises ConfigError
+    naming the key (e.g. `particles`, `resampler.threshold`) before any work is done."""
+    particles = _int(cfg, "particles", 1)
+    seed = _int(cfg, "seed", 0, default=0)
+    mode = OmegaConf.select(cfg, "mode", default="slam")
+    if mode not in MODES:
+        raise ConfigError("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
+    skip = OmegaConf.select(cfg, "steps.skip_static_start", default=True)
+    if not isinstance(skip, bool):
+        raise ConfigError("steps.skip_static_start", f"must be true or false, got {skip!r}")
+    return Components(
+        particles=particles,  # type: ignore[arg-type]
+        seed=seed,  # type: ignore[arg-type]
+        mode=mode,
+        every=_int(cfg, "steps.every", 1, default=1),  # type: ignore[arg-type]
+        min_distance_m=_float(cfg, "steps.min_distance_m", 0.0),
+        min_angle_rad=_float(cfg, "steps.min_angle_rad", 0.0),
+        skip_static_start=skip,
+        max_scans=_int(cfg, "steps.max_scans", 1, default=None, allow_none=True),
+        motion=build_component(cfg, "motion", MotionModel),  # type: ignore[arg-type]
+        weighting=build_component(cfg, "weighting", Weighting),  # type: ignore[arg-type]
+        resampler=build_component(cfg, "resampler", Resampler),  # type: ignore[arg-type]
+        matcher=build_component(cfg, "matcher", Matcher),  # type: ignore[arg-type]
+        map=build_component(cfg, "map", MapSettings),  # type: ignore[arg-type]
+    )
+
+
+def run_slam(
+    sequence: Sequence,
+    cfg: DictConfig,
+    progress: Callable[[int, int], None] | None = None,
+) -> SlamResult:
+    """Run the filter (or dead reckoning, `mode: odometry`) over `sequence`.
+
+    `progress(done_steps, total_steps)` is called after every processed step.
+    Returns one pose per scan (the first `steps.max_scans` scans when set)."""
+    c = validate_config(cfg)
+    scans = sequence.scans if c.max_scans is None else sequence.scans[: c.max_scans]
+    if not scans:
+        raise ConfigError("steps.max_scans", f"sequence {sequence.name!r} has no scans to process")
+    times = np.array([s.t for s in scans], dtype=np.float64)
+    odom = np.array([s.odom for s in scans], dtype=np.float64).reshape(-1, 3)
+    step_scans = select_steps(odom, c.every, c.min_distance_m, c.min_angle_rad, c.skip_static_start)
+    n_steps = len(step_scans)
+    slam = c.mode == "slam"
+    n = c.particles if slam else 1
+
+    ms = c.map
+    min_r = ms.min_range_m if ms.min_range_m is not None else sequence.min_range_m
+    max_r = ms.max_range_m if ms.max_range_m is not None else sequence.max_range_m
+    start = odom[step_scans[0]].copy()
+    grid = OccupancyGrid(ms, (start[0], start[1]), c.matcher.field_sigma_m if slam else 0.0, c.matcher.field_radius_m)
+    rng = np.random.Generator(np.random.PCG64(c.seed))
+
+    poses = np.tile(start, (n, 1))
+    logw = np.full(n, -np.log(n))
+    hist_poses = np.empty((n_steps, n, 3))
+    hist_parent = np.empty((n_steps, n), dtype=np.int32)
+    parent = np.arange(n, dtype=np.int32)
+    causal = np.empty((n_steps, 3))
+    rows: dict[str, list] = {k: [] for k in ("neff", "resampled", "best_weight", "step_time_s")}
+    resample_count = 0
+    t_loop = time.perf_counter()
+    for k, si in enumerate(step_scans):
+        t0 = time.perf_counter()
+        frame = scans[si]
+        pts = scan_to_points(frame, sequence.body_height_m, min_r, max_r, ms.ground_threshold_m)
+        if k > 0:
+            inc = se2_between(odom[step_scans[k - 1]], odom[si])
+            if slam:
+                poses = c.motion.sample(poses, inc, rng)
+                if len(pts.xy):
+                    poses, scores = c.matcher.match(grid, poses, pts)
+                    logw = c.weighting.update(logw, scores)
+            else:
+                poses = se2_compose(poses, inc)
+        w = np.exp(logw)
+        best = int(np.argmax(w))
+        hist_poses[k] = poses
+        hist_parent[k] = parent
+        causal[k] = poses[best]
+        # the map follows the best particle: lidar origin and points in the world
+        bp = poses[best]
+        sensor = points_to_world(pts.origin.reshape(1, 2), bp)[0]
+        grid.insert(sensor, points_to_world(pts.xy, bp))
+        neff = effective_sample_size(w)
+        resampled = False
+        if slam and n > 1 and c.resampler.should_resample(w):
+            idx = c.resampler.indices(w, rng)
+            poses = poses[idx]
+            parent = idx.astype(np.int32)
+            logw = np.full(n, -np.log(n))
+            resampled = True
+            resample_count += 1
+        else:
+            parent = np.arange(n, dtype=np.int32)
+        rows["neff"].append(neff)
+        rows["resampled"].append(resampled)
+        rows["best_weight"].append(float(w[best]))
+        rows["step_time_s"].append(time.perf_counter() - t0)
+        if progress is not None:
+            progress(k + 1, n_steps)
+    runtime = time.perf_counter() - t_loop
+
+    # the final best particle's own path, followed back through its ancestors
+    j = int(np.argmax(logw))
+    smooth = np.empty((n_steps, 3))
+    for k in range(n_steps - 1, -1, -1):
+        smooth[k] = hist_poses[k, j]
+        j = int(hist_parent[k, j])
+
+    steps = pd.DataFrame(
+        {
+            "step": np.arange(n_steps),
+            "scan_index": np.array([scans[i].index for i in step_scans], dtype=np.int64),
+            "t": times[step_scans],
+            **rows,
+        }
+    )
+    underflows = int(getattr(c.weighting, "underflows", 0))
+    if underflows:
+        log.warning("weighting underflowed %d times (uniform fallback used)", underflows)
+    return SlamResult(
+        times=times,
+        trajectory=fill_between_steps(step_scans, smooth, odom),
+        causal=fill_between_steps(step_scans, causal, odom),
+        odometry=se2_compose(start, se2_between(odom[step_scans[0]], odom)),
+        log_odds=grid.to_image(),
+        steps=steps,
+        particles=n,
+        resample_count=resample_count,
+        runtime_s=runtime,
+        fill="odometry",
+        extras={
+            "mode": c.mode,
+            "processed_steps": n_steps,
+            "step_scans": step_scans,
+            "weighting_underflows": underflows,
+            "neff_mean": float(np.mean(rows["neff"])),
+            "neff_min": float(np.min(rows["neff"])),
+            "map_grow_count": grid.grow_count,
+        },
+    )

@@ -1,0 +1,162 @@
+"""The occupancy map: a log-odds grid (float32) that grows as the robot explores.
+
+Cell (row r, col c) covers x in [origin_x + c*res, +res), y in [origin_y + r*res, +res),
+as `frames.GridImage`. When a scan would fall off the grid, the grid is enlarged on that
+side by the scan's overshoot plus `growth_margin_m`, so no part of a long log is lost and
+growth (a copy) happens rarely. Optionally the grid also keeps a likelihood field (a
+Gaussian of the distance to the nearest occupied cell) for scan matching, recomputed only
+where a scan changed which cells are occupied.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slamlab.frames import GridImage
+from slamlab.geometry import FloatArray
+from slamlab.slam._keys import require_nonnegative, require_positive
+from slamlab.errors import ConfigError
+from slamlab.slam.raycast import gaussian_kernel, raycast_update, update_field
+
+GROUP = "map"
+
+
+class MapSettings:
+    """The `map/` config group: resolution and log-odds model of the occupancy grid.
+
+    - resolution_m: cell size (m).
+    - log_odds_occupied (> 0) / log_odds_free (< 0): added to hit / traversed cells.
+    - clamp_min / clamp_max: log-odds bounds (clamp_min < 0 < clamp_max); small bounds
+      let the map forget moving people quickly.
+    - occupied_threshold: a cell counts as a wall when its log-odds is above this.
+    - ground_threshold_m: scan points lower than this above the floor are dropped.
+    - min_range_m / max_range_m: beams outside are not used (null = the sequence's).
+    - initial_size_m: side of the square grid at start; growth_margin_m: extra room added
+      whenever the grid must grow.
+    """
+
+    def __init__(
+        self,
+        resolution_m: float = 0.05,
+        log_odds_occupied: float = 0.85,
+        log_odds_free: float = -0.4,
+        clamp_min: float = -5.0,
+        clamp_max: float = 5.0,
+        occupied_threshold: float = 0.0,
+        ground_threshold_m: float = 0.1,
+        min_range_m: float | None = None,
+        max_range_m: float | None = None,
+        initial_size_m: float = 40.0,
+        growth_margin_m: float = 10.0,
+    ) -> None:
+        self.resolution_m = require_positive(GROUP, "resolution_m", resolution_m)
+        self.log_odds_occupied = require_positive(GROUP, "log_odds_occupied", log_odds_occupied)
+        if not (isinstance(log_odds_free, (int, float)) and log_odds_free < 0):
+            raise ConfigError(f"{GROUP}.log_odds_free", f"must be < 0, got {log_odds_free!r}")
+        self.log_odds_free = float(log_odds_free)
+        if not (isinstance(clamp_min, (int, float)) and clamp_min < 0):
+            raise ConfigError(f"{GROUP}.clamp_min", f"must be < 0, got {clamp_min!r}")
+        if not (isinstance(clamp_max, (int, float)) and clamp_max > 0):
+            raise ConfigError(f"{GROUP}.clamp_max", f"must be > 0, got {clamp_max!r}")
+        self.clamp_min, self.clamp_max = float(clamp_min), float(clamp_max)
+        if not (isinstance(occupied_threshold, (int, float)) and self.clamp_min <= occupied_threshold < self.clamp_max):
+            raise ConfigError(f"{GROUP}.occupied_threshold", f"must lie in [clamp_min, clamp_max), got {occupied_threshold!r}")
+        self.occupied_threshold = float(occupied_threshold)
+        self.ground_threshold_m = float(ground_threshold_m)
+        self.min_range_m = None if min_range_m is None else require_nonnegative(GROUP, "min_range_m", min_range_m)
+        self.max_range_m = None if max_range_m is None else require_positive(GROUP, "max_range_m", max_range_m)
+        if self.min_range_m is not None and self.max_range_m is not None and self.min_range_m >= self.max_range_m:
+            raise ConfigError(f"{GROUP}.max_range_m", "must be greater than map.min_range_m")
+        self.initial_size_m = require_positive(GROUP, "initial_size_m", initial_size_m)
+        self.growth_margin_m = require_nonnegative(GROUP, "growth_margin_m", growth_margin_m)
+
+
+class OccupancyGrid:
+    """Log-odds grid centred at `center_xy` (m) at start, growing on demand.
+
+    `field_sigma_m` > 0 also maintains `field` (float32, values in [0, 1]) =
+    exp(-d^2 / (2 sigma^2)) with d the distance (m) to the nearest occupied cell, cut off at
+    `field_radius_m`.
+    """
+
+    def __init__(
+        self,
+        settings: MapSettings,
+        center_xy: tuple[float, float] = (0.0, 0.0),
+        field_sigma_m: float = 0.0,
+        field_radius_m: float = 0.0,
+    ) -> None:
+        self.s = settings
+        self.res = settings.resolution_m
+        n = max(int(np.ceil(settings.initial_size_m / self.res)), 8)
+        self.origin = np.array([center_xy[0] - n * self.res / 2.0, center_xy[1] - n * self.res / 2.0])
+        self.log_odds = np.zeros((n, n), dtype=np.float32)
+        self.kernel: np.ndarray | None = None
+        self.field: np.ndarray | None = None
+        if field_sigma_m > 0:
+            radius = max(int(np.ceil(max(field_radius_m, field_sigma_m) / self.res)), 1)
+            self.kernel = gaussian_kernel(field_sigma_m / self.res, radius)
+            self.field = np.zeros((n, n), dtype=np.float32)
+        self.grow_count = 0
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.log_odds.shape  # type: ignore[return-value]
+
+    def cells(self, xy: FloatArray) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, cols) int64 of world points (M, 2) m (may lie outside the grid)."""
+        c = np.floor((xy[:, 0] - self.origin[0]) / self.res).astype(np.int64)
+        r = np.floor((xy[:, 1] - self.origin[1]) / self.res).astype(np.int64)
+        return r, c
+
+    def ensure(self, xmin: float, ymin: float, xmax: float, ymax: float) -> None:
+        """Grow the grid (by the overshoot + growth margin) so the box (m) fits inside."""
+        H, W = self.shape
+        m = int(np.ceil(self.s.growth_margin_m / self.res)) + 1
+        lo_c = int(np.floor((xmin - self.origin[0]) / self.res))
+        lo_r = int(np.floor((ymin - self.origin[1]) / self.res))
+        hi_c = int(np.floor((xmax - self.origin[0]) / self.res))
+        hi_r = int(np.floor((ymax - self.origin[1]) / self.res))
+        pad_l = m - lo_c if lo_c < 1 else 0
+        pad_b = m - lo_r if lo_r < 1 else 0
+        pad_r = hi_c - (W - 2) + m if hi_c > W - 2 else 0
+        pad_t = hi_r - (H - 2) + m if hi_r > H - 2 else 0
+        if pad_l == pad_b == pad_r == pad_t == 0:
+            return
+        self.log_odds = np.pad(self.log_odds, ((pad_b, pad_t), (pad_l, pad_r)))
+        if self.field is not None:
+            self.field = np.pad(self.field, ((pad_b, pad_t), (pad_l, pad_r)))
+        self.origin = self.origin - np.array([pad_l, pad_b]) * self.res
+        self.grow_count += 1
+
+    def insert(self, sensor_xy: FloatArray, points_xy: FloatArray) -> None:
+        """Ray-cast one scan: sensor position (2,) m, world hit points (M, 2) m."""
+        if len(points_xy) == 0:
+            return
+        xs = np.append(points_xy[:, 0], sensor_xy[0])
+        ys = np.append(points_xy[:, 1], sensor_xy[1])
+        self.ensure(xs.min(), ys.min(), xs.max(), ys.max())
+        rows, cols = self.cells(points_xy)
+        sr, sc = self.cells(np.asarray(sensor_xy, dtype=np.float64).reshape(1, 2))
+        flip = np.array([np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1], dtype=np.int64)
+        s = self.s
+        raycast_update(
+            self.log_odds, int(sr[0]), int(sc[0]), rows, cols,
+            np.float32(s.log_odds_occupied), np.float32(s.log_odds_free),
+            np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold), flip,
+        )
+        if self.field is not None and flip[1] >= 0:
+            R = self.kernel.shape[0] // 2  # type: ignore[union-attr]
+            H, W = self.shape
+            update_field(
+                self.log_odds, self.field, np.float32(s.occupied_threshold), self.kernel,
+                max(flip[0] - R, 0), min(flip[1] + R + 1, H), max(flip[2] - R, 0), min(flip[3] + R + 1, W),
+            )
+
+    def occupied(self) -> np.ndarray:
+        """bool [H, W]: cells whose log-odds exceed the occupied threshold."""
+        return self.log_odds > self.s.occupied_threshold
+
+    def to_image(self) -> GridImage:
+        """The log-odds grid as a float32 GridImage (a copy)."""
+        return GridImage(data=self.log_odds.copy(), resolution_m=self.res, origin_xy=(float(self.origin[0]), float(self.origin[1])))

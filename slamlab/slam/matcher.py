@@ -1,0 +1,267 @@
+"""Scan-to-map matching: score each particle's scan against the map over pose offsets.
+
+Two matchers (numba kernels, serial loops so results are bit-for-bit reproducible):
+- `GridMatcher` (the course): correlation = number of scan points landing on occupied
+  cells, evaluated on a fixed grid of x/y/yaw offsets around each particle.
+- `LikelihoodFieldMatcher`: score = sum over points of a likelihood field
+  exp(-d^2 / 2 sigma^2) (d: distance to the nearest wall, bilinear between cells), a coarse
+  x/y/yaw grid on a subsample of beams, then hill climbing on all (used) beams with
+  halving steps. Smooth scores make sub-cell poses reachable and weights less jumpy.
+With `move_to_best` the particle moves to its best offset; the score there is its
+correlation for the weighting either way.
+
+Adding a matcher: subclass `Matcher`, implement `match`, add `conf/matcher/NAME.yaml`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from slamlab.geometry import FloatArray, wrap_angle
+from slamlab.slam._keys import require_int, require_nonnegative, require_positive
+from slamlab.slam.grid import OccupancyGrid
+from slamlab.slam.scan import ScanPoints
+
+GROUP = "matcher"
+
+
+@numba.njit(cache=True)
+def score_hits(lo, thresh, ox, oy, inv_res, x, y, th, pts):
+    """Number of points (M, 2, body-yaw frame) that fall on cells with `lo > thresh` when
+    the body is at (x, y, th)."""
+    H, W = lo.shape
+    c = math.cos(th)
+    s = math.sin(th)
+    total = 0.0
+    for i in range(pts.shape[0]):
+        wx = x + c * pts[i, 0] - s * pts[i, 1]
+        wy = y + s * pts[i, 0] + c * pts[i, 1]
+        col = int(math.floor((wx - ox) * inv_res))
+        row = int(math.floor((wy - oy) * inv_res))
+        if 0 <= row < H and 0 <= col < W and lo[row, col] > thresh:
+            total += 1.0
+    return total
+
+
+@numba.njit(cache=True)
+def score_field(field, ox, oy, inv_res, x, y, th, pts):
+    """Sum of the likelihood field (bilinear between cell centres) at the points."""
+    H, W = field.shape
+    c = math.cos(th)
+    s = math.sin(th)
+    total = 0.0
+    for i in range(pts.shape[0]):
+        wx = x + c * pts[i, 0] - s * pts[i, 1]
+        wy = y + s * pts[i, 0] + c * pts[i, 1]
+        u = (wx - ox) * inv_res - 0.5
+        v = (wy - oy) * inv_res - 0.5
+        c0 = int(math.floor(u))
+        r0 = int(math.floor(v))
+        if c0 < 0 or r0 < 0 or c0 + 1 >= W or r0 + 1 >= H:
+            continue
+        fu = u - c0
+        fv = v - r0
+        total += (1.0 - fv) * ((1.0 - fu) * field[r0, c0] + fu * field[r0, c0 + 1]) + fv * (
+            (1.0 - fu) * field[r0 + 1, c0] + fu * field[r0 + 1, c0 + 1]
+        )
+    return total
+
+
+@numba.njit(cache=True)
+def grid_search_hits(lo, thresh, ox, oy, inv_res, poses, pts, offsets, out_poses, out_scores):
+    """For each particle, the offset (K, 3: dx m, dy m, dyaw rad, world axes) with the most
+    hits; ties go to the earlier offset (offsets are sorted smallest first)."""
+    for i in range(poses.shape[0]):
+        best = -1.0
+        bk = 0
+        for k in range(offsets.shape[0]):
+            sc = score_hits(lo, thresh, ox, oy, inv_res, poses[i, 0] + offsets[k, 0], poses[i, 1] + offsets[k, 1], poses[i, 2] + offsets[k, 2], pts)
+            if sc > best:
+                best = sc
+                bk = k
+        out_poses[i, 0] = poses[i, 0] + offsets[bk, 0]
+        out_poses[i, 1] = poses[i, 1] + offsets[bk, 1]
+        out_poses[i, 2] = poses[i, 2] + offsets[bk, 2]
+        out_scores[i] = best
+
+
+@numba.njit(cache=True)
+def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, out_poses, out_scores):
+    """Coarse grid over `offsets` with `coarse_pts`, then hill climbing with `fine_pts`:
+    try +-lin_step in x, y and +-ang_step in yaw, take the best improving move, repeat; when
+    none improves halve both steps, `levels` times. Writes best poses and their fine scores."""
+    for i in range(poses.shape[0]):
+        bx = poses[i, 0]
+        by = poses[i, 1]
+        bt = poses[i, 2]
+        if offsets.shape[0] > 1:
+            best = -1.0
+            bk = 0
+            for k in range(offsets.shape[0]):
+                sc = score_field(field, ox, oy, inv_res, poses[i, 0] + offsets[k, 0], poses[i, 1] + offsets[k, 1], poses[i, 2] + offsets[k, 2], coarse_pts)
+                if sc > best:
+                    best = sc
+                    bk = k
+            bx += offsets[bk, 0]
+            by += offsets[bk, 1]
+            bt += offsets[bk, 2]
+        cur = score_field(field, ox, oy, inv_res, bx, by, bt, fine_pts)
+        ls = lin_step
+        as_ = ang_step
+        for _ in range(levels):
+            for _it in range(16):  # bounded: a climb never runs away on a flat score
+                mx = bx
+                my = by
+                mt = bt
+                ms = cur
+                for m in range(6):
+                    cx = bx
+                    cy = by
+                    ct = bt
+                    if m == 0:
+                        cx += ls
+                    elif m == 1:
+                        cx -= ls
+                    elif m == 2:
+                        cy += ls
+                    elif m == 3:
+                        cy -= ls
+                    elif m == 4:
+                        ct += as_
+                    else:
+                        ct -= as_
+                    sc = score_field(field, ox, oy, inv_res, cx, cy, ct, fine_pts)
+                    if sc > ms:
+                        ms = sc
+                        mx = cx
+                        my = cy
+                        mt = ct
+                if ms > cur:
+                    bx = mx
+                    by = my
+                    bt = mt
+                    cur = ms
+                else:
+                    break
+            ls *= 0.5
+            as_ *= 0.5
+        out_poses[i, 0] = bx
+        out_poses[i, 1] = by
+        out_poses[i, 2] = bt
+        out_scores[i] = cur
+
+
+def offset_grid(xy_half_width_m: float, xy_step_m: float, yaw_half_width_rad: float, yaw_step_rad: float) -> FloatArray:
+    """(K, 3) offsets (dx m, dy m, dyaw rad), sorted by size so ties favour small moves."""
+    nxy = int(round(xy_half_width_m / xy_step_m)) if xy_step_m > 0 else 0
+    nyaw = int(round(yaw_half_width_rad / yaw_step_rad)) if yaw_step_rad > 0 else 0
+    dxy = np.arange(-nxy, nxy + 1) * xy_step_m
+    dyaw = np.arange(-nyaw, nyaw + 1) * yaw_step_rad
+    g = np.array(np.meshgrid(dxy, dxy, dyaw, indexing="ij")).reshape(3, -1).T
+    key = (g[:, 0] / max(xy_step_m, 1e-9)) ** 2 + (g[:, 1] / max(xy_step_m, 1e-9)) ** 2 + (g[:, 2] / max(yaw_step_rad, 1e-9)) ** 2
+    return np.ascontiguousarray(g[np.argsort(key, kind="stable")])
+
+
+class Matcher:
+    """Interface: `match(grid, poses (N,3), scan) -> (poses (N,3), scores (N,))`.
+    `field_sigma_m` / `field_radius_m` > 0 ask the grid to keep a likelihood field."""
+
+    field_sigma_m: float = 0.0
+    field_radius_m: float = 0.0
+    move_to_best: bool = True
+
+    def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
+        raise NotImplementedError
+
+    def _finish(self, poses: FloatArray, best: FloatArray, scores: FloatArray) -> tuple[FloatArray, FloatArray]:
+        if not self.move_to_best:
+            return poses, scores
+        best[:, 2] = wrap_angle(best[:, 2])
+        return best, scores
+
+
+class GridMatcher(Matcher):
+    """The course's map correlation over a grid of offsets (hit counts on occupied cells).
+
+    Offsets: x and y from -xy_half_width_m to +xy_half_width_m in xy_step_m (0.2 / 0.05 =
+    9 x 9), yaw likewise (yaw_half_width_rad 0 = no yaw search). `beam_step` uses every
+    k-th scan point.
+    """
+
+    def __init__(
+        self,
+        xy_half_width_m: float = 0.2,
+        xy_step_m: float = 0.05,
+        yaw_half_width_rad: float = 0.0,
+        yaw_step_rad: float = 0.01,
+        move_to_best: bool = True,
+        beam_step: int = 1,
+    ) -> None:
+        require_nonnegative(GROUP, "xy_half_width_m", xy_half_width_m)
+        require_positive(GROUP, "xy_step_m", xy_step_m)
+        require_nonnegative(GROUP, "yaw_half_width_rad", yaw_half_width_rad)
+        require_positive(GROUP, "yaw_step_rad", yaw_step_rad)
+        self.beam_step = require_int(GROUP, "beam_step", beam_step, 1)
+        self.offsets = offset_grid(xy_half_width_m, xy_step_m, yaw_half_width_rad, yaw_step_rad)
+        self.move_to_best = bool(move_to_best)
+
+    def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
+        pts = np.ascontiguousarray(scan.xy[:: self.beam_step])
+        best = np.empty_like(poses)
+        scores = np.empty(len(poses))
+        grid_search_hits(
+            grid.log_odds, np.float32(grid.s.occupied_threshold), grid.origin[0], grid.origin[1], 1.0 / grid.res,
+            np.ascontiguousarray(poses), pts, self.offsets, best, scores,
+        )
+        return self._finish(poses, best, scores)
+
+
+class LikelihoodFieldMatcher(Matcher):
+    """Coarse-to-fine matching on a likelihood field (see module doc).
+
+    - sigma_m / radius_m: field width and cut-off (m).
+    - xy_half_width_m, xy_step_m, yaw_half_width_rad, yaw_step_rad: the coarse grid
+      (evaluated with every `coarse_beam_step`-th point); half widths 0 skip it.
+    - beam_step: points used by the hill climb and the score (every k-th).
+    - refine_levels: step halvings of the hill climb, starting from half the coarse steps.
+    """
+
+    def __init__(
+        self,
+        sigma_m: float = 0.05,
+        radius_m: float = 0.2,
+        xy_half_width_m: float = 0.1,
+        xy_step_m: float = 0.05,
+        yaw_half_width_rad: float = 0.1,
+        yaw_step_rad: float = 0.025,
+        coarse_beam_step: int = 3,
+        beam_step: int = 1,
+        refine_levels: int = 4,
+        move_to_best: bool = True,
+    ) -> None:
+        self.field_sigma_m = require_positive(GROUP, "sigma_m", sigma_m)
+        self.field_radius_m = require_positive(GROUP, "radius_m", radius_m)
+        require_nonnegative(GROUP, "xy_half_width_m", xy_half_width_m)
+        self.xy_step_m = require_positive(GROUP, "xy_step_m", xy_step_m)
+        require_nonnegative(GROUP, "yaw_half_width_rad", yaw_half_width_rad)
+        self.yaw_step_rad = require_positive(GROUP, "yaw_step_rad", yaw_step_rad)
+        self.coarse_beam_step = require_int(GROUP, "coarse_beam_step", coarse_beam_step, 1)
+        self.beam_step = require_int(GROUP, "beam_step", beam_step, 1)
+        self.refine_levels = require_int(GROUP, "refine_levels", refine_levels, 0)
+        self.offsets = offset_grid(xy_half_width_m, xy_step_m, yaw_half_width_rad, yaw_step_rad)
+        self.move_to_best = bool(move_to_best)
+
+    def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
+        assert grid.field is not None, "grid built without a likelihood field"
+        coarse = np.ascontiguousarray(scan.xy[:: self.coarse_beam_step])
+        fine = np.ascontiguousarray(scan.xy[:: self.beam_step])
+        best = np.empty_like(poses)
+        scores = np.empty(len(poses))
+        field_search(
+            grid.field, grid.origin[0], grid.origin[1], 1.0 / grid.res, np.ascontiguousarray(poses), coarse, fine,
+            self.offsets, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels, best, scores,
+        )
+        return self._finish(poses, best, scores)

@@ -1,0 +1,113 @@
+"""Ray casting into the log-odds grid (numba): cells along each beam down, end cells up.
+
+Grid arrays are indexed [row, col] with row = y and col = x (row 0 = lowest y).
+All free-space updates of a scan are applied before its hits, so a wall cell crossed by a
+neighbouring beam of the same scan is not erased by it.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+def bresenham(r0: int, c0: int, r1: int, c1: int) -> list[tuple[int, int]]:
+    """Reference (pure Python) list of cells from (r0, c0) to (r1, c1), both included.
+    Used by tests to check the compiled kernel, which walks the same cells."""
+    cells = []
+    dr, dc = abs(r1 - r0), abs(c1 - c0)
+    sr = 1 if r1 > r0 else -1
+    sc = 1 if c1 > c0 else -1
+    err = dc - dr
+    r, c = r0, c0
+    while True:
+        cells.append((r, c))
+        if r == r1 and c == c1:
+            return cells
+        e2 = 2 * err
+        if e2 > -dr:
+            err -= dr
+            c += sc
+        if e2 < dc:
+            err += dc
+            r += sr
+
+
+@numba.njit(cache=True, inline="always")
+def _add(lo, r, c, delta, lmin, lmax, thresh, flip):
+    old = lo[r, c]
+    new = old + delta
+    if new < lmin:
+        new = lmin
+    elif new > lmax:
+        new = lmax
+    lo[r, c] = new
+    if (old > thresh) != (new > thresh):
+        # remember the bounding box of cells whose occupied/free state changed
+        if r < flip[0]:
+            flip[0] = r
+        if r > flip[1]:
+            flip[1] = r
+        if c < flip[2]:
+            flip[2] = c
+        if c > flip[3]:
+            flip[3] = c
+
+
+@numba.njit(cache=True)
+def raycast_update(lo, r0, c0, rows, cols, l_occ, l_free, lmin, lmax, thresh, flip):
+    """Update log-odds `lo` (float32 [H, W]) for beams from cell (r0, c0) to each (rows[k],
+    cols[k]): every cell strictly before the end gets `l_free` (< 0), the end cell `l_occ`;
+    values are clamped to [lmin, lmax]. Cells whose `lo > thresh` state flips extend the
+    int64 box `flip` = [rmin, rmax, cmin, cmax] (in/out). All cells must lie inside `lo`."""
+    for k in range(rows.shape[0]):
+        r1 = rows[k]
+        c1 = cols[k]
+        dr = abs(r1 - r0)
+        dc = abs(c1 - c0)
+        sr = 1 if r1 > r0 else -1
+        sc = 1 if c1 > c0 else -1
+        err = dc - dr
+        r = r0
+        c = c0
+        while r != r1 or c != c1:
+            _add(lo, r, c, l_free, lmin, lmax, thresh, flip)
+            e2 = 2 * err
+            if e2 > -dr:
+                err -= dr
+                c += sc
+            if e2 < dc:
+                err += dc
+                r += sr
+    for k in range(rows.shape[0]):
+        _add(lo, rows[k], cols[k], l_occ, lmin, lmax, thresh, flip)
+
+
+@numba.njit(cache=True)
+def update_field(lo, field, thresh, kernel, r0, r1, c0, c1):
+    """Recompute the likelihood field `field` (float32 [H, W]) in rows [r0, r1), cols
+    [c0, c1): each cell gets the max of `kernel` (float32 [2R+1, 2R+1], e.g. a Gaussian of
+    the distance) over occupied cells (`lo > thresh`) within R cells. Cells outside the box
+    are unchanged, so a caller recomputes only where the occupancy changed (plus R)."""
+    H, W = lo.shape
+    R = kernel.shape[0] // 2
+    for r in range(r0, r1):
+        for c in range(c0, c1):
+            field[r, c] = 0.0
+    for r in range(max(r0 - R, 0), min(r1 + R, H)):
+        for c in range(max(c0 - R, 0), min(c1 + R, W)):
+            if lo[r, c] > thresh:
+                for rr in range(max(r - R, r0), min(r + R + 1, r1)):
+                    for cc in range(max(c - R, c0), min(c + R + 1, c1)):
+                        v = kernel[rr - r + R, cc - c + R]
+                        if v > field[rr, cc]:
+                            field[rr, cc] = v
+
+
+def gaussian_kernel(sigma_cells: float, radius_cells: int) -> np.ndarray:
+    """float32 [2R+1, 2R+1] with exp(-d^2 / (2 sigma^2)), d the distance in cells."""
+    ax = np.arange(-radius_cells, radius_cells + 1, dtype=np.float64)
+    d2 = ax[:, None] ** 2 + ax[None, :] ** 2
+    k = np.exp(-d2 / (2.0 * sigma_cells**2))
+    k[d2 > (radius_cells + 0.5) ** 2] = 0.0
+    return k.astype(np.float32)
