@@ -405,7 +405,7 @@ class RGBDStream:
                 raise DataError(self.depth_path, f"expected an HxW depth image, got shape {raw.shape}", record=f"frame {k}", field=names[-1])
             mm = np.flip(raw, 1).astype(np.float32)  # un-mirror
             ok = (mm >= DEPTH_MIN_MM) & (mm <= DEPTH_MAX_MM)  # also drops NaN
-            depth_m = np.where(ok, mm * np.float32(0.001), np.float32(0.0)).astype(np.float32)
+            depth_m = np.where(ok, mm / np.float32(1000.0), np.float32(0.0)).astype(np.float32)  # mm / 1000 is exact-rounded
             rgb, rgb_t = None, float("nan")
             want = int(self.rgb_index[k])
             if want >= 0:
