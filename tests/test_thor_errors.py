@@ -69,7 +69,7 @@ def test_truncated_and_corrupt_mat(tmp_path: Path) -> None:
     p = tmp_path / "train_lidar0.mat"
     data = p.read_bytes()
     p.write_bytes(data[: len(data) // 2])
-    raises(tmp_path, "train_lidar0.mat", "truncated or corrupt")
+    raises(tmp_path, "train_lidar0.mat", f"record {N // 2 - 1}", "truncated or corrupt")  # the first damaged record
     p.write_bytes(b"this is not a MATLAB file at all" * 10)
     raises(tmp_path, "train_lidar0.mat", "truncated or corrupt")
 

@@ -39,22 +39,33 @@ def _field(d: dict, path: Path, name: str, size: int) -> np.ndarray:
 
 
 def _intrinsics(path: Path) -> CameraIntrinsics:
+    """One camera (Bouguet toolbox result): fc, cc px; kc (5,); alpha_c; im_size [W, H] px."""
     d = _load_pickle(path)
     kc = _field(d, path, "kc", 5)
-    size = _field(d, path, "im_size", 2).astype(int)
+    size = _field(d, path, "im_size", 2)
+    if np.any(size < 1) or np.any(size != np.round(size)):
+        raise DataError(path, f"expected a positive [width, height] in pixels, got {size}", field="im_size")
+    fc = _field(d, path, "fc", 2)
+    if np.any(fc <= 0):
+        raise DataError(path, f"focal lengths must be positive, got {fc}", field="fc")
+    alpha_c = _field(d, path, "alpha_c", 1)[0] if "alpha_c" in d else 0.0  # skew; 0 for the Kinect
     return CameraIntrinsics(
-        fc=_field(d, path, "fc", 2),
+        fc=fc,
         cc=_field(d, path, "cc", 2),
         kc=kc,
-        alpha_c=float(d.get("alpha_c", 0.0)),
+        alpha_c=float(alpha_c),
         width=int(size[0]),
         height=int(size[1]),
     )
 
 
 def load_kinect_calibration(folder: str | Path) -> KinectCalibration:
-    """Read `IRcam_Calib_result.pkl`, `RGBcamera_Calib_result.pkl` and `exParams.pkl`."""
+    """Read `IRcam_Calib_result.pkl`, `RGBcamera_Calib_result.pkl` and `exParams.pkl` from
+    `folder` (the course's `cameraParam/`). Extrinsics: `P_rgb = R @ P_ir + T`, T in mm.
+    Raises DataError naming the file and field for a missing/corrupt pickle or bad values."""
     folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError(folder, "calibration folder not found")
     ext_path = folder / EXTRINSICS_FILE
     ext = _load_pickle(ext_path)
     R = _field(ext, ext_path, "R", 9).reshape(3, 3)

@@ -48,8 +48,9 @@ CALIBRATION_SUBDIR = "cameraParam"
 # --------------------------------------------------------------------------- .mat access
 
 
-def loadmat_checked(path: Path) -> dict:
-    """`scipy.io.loadmat` with user-facing errors for missing, truncated or v7.3 files."""
+def loadmat_checked(path: Path, cell_var: str | None = None) -> dict:
+    """`scipy.io.loadmat` with user-facing errors for missing, truncated or v7.3 files;
+    for a damaged file holding cell variable `cell_var`, the error names the first bad record."""
     if not path.is_file():
         raise DataError(path, "file not found")
     try:
@@ -57,7 +58,20 @@ def loadmat_checked(path: Path) -> dict:
     except NotImplementedError:  # scipy's message for HDF5-based MAT v7.3 files
         raise DataError(path, "MATLAB v7.3 (HDF5) files are not supported: re-save with save(..., '-v7')") from None
     except Exception as exc:  # noqa: BLE001 - scipy raises many types for corrupt files
-        raise DataError(path, f"cannot read .mat file, truncated or corrupt ({exc.__class__.__name__}: {exc})") from None
+        record = _locate_damage(path, cell_var) if cell_var else None
+        raise DataError(path, f"cannot read .mat file, truncated or corrupt ({exc.__class__.__name__}: {exc})", record=record) from None
+
+
+def _locate_damage(path: Path, varname: str) -> str | None:
+    """The first unreadable record of a damaged cell variable, found by streaming it."""
+    from slamlab.datasets.thor_rgbd import iter_struct_cell
+
+    try:
+        for _ in iter_struct_cell(path, varname):
+            pass
+    except DataError as err:
+        return None if err.record is None else str(err.record).replace("frame", "record")
+    return None
 
 
 def _numbers(value: object, path: Path, record: str, field: str, size: int | None = None) -> np.ndarray:
@@ -120,7 +134,7 @@ def read_lidar_mat(path: str | Path) -> LidarLog:
     not 1081 ranges, bad `res`, empty logs and times that step back.
     """
     path = Path(path)
-    mat = loadmat_checked(path)
+    mat = loadmat_checked(path, cell_var="lidar")
     if "lidar" not in mat:
         found = sorted(k for k in mat if not k.startswith("__"))
         raise DataError(path, f"variable missing (found: {found})", field="lidar")
