@@ -1,0 +1,366 @@
+"""CARMEN log reader: the real benchmark logs, small handwritten logs, and bad input."""
+
+from __future__ import annotations
+
+import bz2
+import gzip
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from slamlab.datasets.carmen import flaser_beam_angles, load_carmen, load_relations
+from slamlab.errors import DataError
+from slamlab.eval.relations import match_times, relation_errors
+from slamlab.geometry import se2_between
+
+CONF_DIR = Path(__file__).resolve().parents[1] / "slamlab" / "conf"
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def flaser(ranges, pose=(0.0, 0.0, 0.0), odom=None, t=1.0, host="nohost", logger_t=0.5) -> str:
+    odom = pose if odom is None else odom
+    vals = " ".join(str(r) for r in ranges)
+    p = " ".join(f"{v:.6f}" for v in (*pose, *odom))
+    return f"FLASER {len(ranges)} {vals} {p} {t:.6f} {host} {logger_t:.6f}"
+
+
+def robotlaser1(ranges, remissions, laser_pose, robot_pose, t, start=-np.pi / 2, res=np.pi / 180, max_range=20.0):
+    r = " ".join(str(v) for v in ranges)
+    e = " ".join(str(v) for v in remissions)
+    lp = " ".join(f"{v:.6f}" for v in laser_pose)
+    rp = " ".join(f"{v:.6f}" for v in robot_pose)
+    fov = res * (len(ranges) - 1)
+    return (
+        f"ROBOTLASER1 0 {start:.6f} {fov:.6f} {res:.6f} {max_range} 0.01 0 {len(ranges)} {r} "
+        f"{len(remissions)} {e} {lp} {rp} 0.3 0.1 0.5 0.2 0.0 {t:.6f} myhost {t + 0.01:.6f}"
+    )
+
+
+SMALL_LOG = "\n".join(
+    [
+        "# message_name [message contents] ipc_timestamp ipc_hostname logger_timestamp",
+        "PARAM robot_frontlaser_offset 0.0 nohost 0",
+        "ODOM 0.0 0.0 0.0 0.0 0.0 0.0 0.9 nohost 0.1",
+        flaser([1.0, 2.0, 20.0, 3.5, 20.0], pose=(0.0, 0.0, 0.1), t=1.0),
+        "ODOM 0.1 0.0 0.0 0.0 0.0 0.0 1.1 nohost 0.1",
+        flaser([1.1, 20.0, 2.5, 3.4, 4.0], pose=(0.5, 0.2, 0.2), t=1.2),
+        # the clock steps back: the scan must stay third
+        flaser([1.2, 2.2, 2.4, 20.0, 4.1], pose=(0.9, 0.3, 0.3), t=1.1),
+        "SYNC foo 1.3 nohost 0.2",
+    ]
+)
+
+
+def write(path: Path, text: str) -> Path:
+    path.write_text(text + "\n")
+    return path
+
+
+def assert_same_sequence(a, b) -> None:
+    assert len(a) == len(b)
+    for s, r in zip(a.scans, b.scans):
+        assert s.t == r.t
+        np.testing.assert_array_equal(s.odom, r.odom)
+        np.testing.assert_array_equal(s.ranges, r.ranges)
+        np.testing.assert_array_equal(s.angles, r.angles)
+        np.testing.assert_array_equal(s.valid, r.valid)
+        np.testing.assert_array_equal(s.lidar_to_body, r.lidar_to_body)
+
+
+# ----------------------------------------------------------------------------- real logs
+
+
+@pytest.fixture(scope="module")
+def intel(shared_data):
+    return load_carmen(shared_data / "carmen" / "intel.clf.bz2")
+
+
+@pytest.fixture(scope="module")
+def aces(shared_data):
+    return load_carmen(shared_data / "carmen" / "aces.clf.bz2")
+
+
+@pytest.mark.data
+@pytest.mark.parametrize(
+    ("seq_name", "scans", "relations", "saturation_m", "ref_mean", "ref_std"),
+    [("intel", 13631, 2984, 81.83, 7.370, 14.352), ("aces", 7374, 1279, 50.0, 0.549, 2.676)],
+)
+def test_benchmark_log(request, seq_name, scans, relations, saturation_m, ref_mean, ref_std):
+    seq = request.getfixturevalue(seq_name)
+    assert seq.name == seq_name
+    assert len(seq) == scans
+    assert [s.index for s in seq.scans] == list(range(scans))
+    assert {s.ranges.size for s in seq.scans} == {180}
+    s0 = seq.scans[0]
+    assert s0.ranges.dtype == np.float32 and s0.angles.dtype == np.float32
+    assert np.degrees(s0.angles[[0, 1, -1]]) == pytest.approx([-90.0, -89.0, 89.0], abs=1e-4)
+    # No mount offset in these logs (laser pose == robot pose in every record).
+    np.testing.assert_array_equal(s0.lidar_to_body, np.eye(4))
+    assert seq.body_height_m is None and s0.roll == 0.0 and s0.pitch == 0.0
+    # The saturation value is detected and means "no return".
+    assert seq.max_range_m == pytest.approx(saturation_m)
+    all_r = np.concatenate([s.ranges for s in seq.scans])
+    all_v = np.concatenate([s.valid for s in seq.scans])
+    assert not all_v[all_r >= np.float32(saturation_m)].any()
+    assert all_v[all_r < np.float32(saturation_m)].all()
+    # Relations: found beside the log, every time is a scan time.
+    assert seq.relations is not None and seq.relations.rel.shape == (relations, 3)
+    assert seq.sources[1].endswith(f"{seq_name}.relations")
+    times = seq.times
+    match_times(times, np.concatenate([seq.relations.t1, seq.relations.t2]))
+    # Raw odometry reproduces the published relation error: validates reader and metric.
+    e = relation_errors(times, seq.odometry, seq.relations)
+    assert e["count"] == relations
+    assert e["trans_abs_mean_m"] == pytest.approx(ref_mean, rel=0.01)
+    assert e["trans_abs_std_m"] == pytest.approx(ref_std, rel=0.01)
+
+
+@pytest.mark.data
+def test_intel_keeps_file_order_with_backward_clock(intel):
+    dt = np.diff(intel.times)
+    assert np.count_nonzero(dt < 0) == 631  # README: 631 backward jumps, never re-sorted
+    assert dt.min() > -1.0
+
+
+@pytest.mark.data
+def test_plain_gzip_bzip2_read_the_same(shared_data, tmp_path):
+    # The head of the real Intel log, written in each container.
+    with bz2.open(shared_data / "carmen" / "intel.clf.bz2", "rt", encoding="latin-1") as f:
+        head = "".join(next(f) for _ in range(400))
+    (tmp_path / "head.clf").write_text(head, encoding="latin-1")
+    with gzip.open(tmp_path / "head.clf.gz", "wt", encoding="latin-1") as f:
+        f.write(head)
+    with bz2.open(tmp_path / "head.clf.bz2", "wt", encoding="latin-1") as f:
+        f.write(head)
+    plain = load_carmen(tmp_path / "head.clf")
+    assert len(plain) == head.count("\nFLASER ")
+    assert plain.name == "head" and plain.relations is None
+    assert_same_sequence(plain, load_carmen(tmp_path / "head.clf.gz"))
+    assert_same_sequence(plain, load_carmen(tmp_path / "head.clf.bz2"))
+
+
+# ----------------------------------------------------------------------------- small logs
+
+
+def test_small_flaser_log(tmp_path):
+    seq = load_carmen(write(tmp_path / "small.clf", SMALL_LOG))
+    assert len(seq) == 3
+    assert [s.t for s in seq.scans] == [1.0, 1.2, 1.1]  # file order, not time order
+    np.testing.assert_allclose(seq.odometry, [[0, 0, 0.1], [0.5, 0.2, 0.2], [0.9, 0.3, 0.3]])
+    # 5 beams over 180 deg: -90, -45, 0, 45, 90.
+    np.testing.assert_allclose(np.degrees(seq.scans[0].angles), [-90, -45, 0, 45, 90], atol=1e-5)
+    # 20.0 repeats (4 of 15 readings): detected as the saturation value, those beams invalid.
+    assert seq.max_range_m == 20.0
+    assert seq.scans[0].valid.tolist() == [True, True, False, True, False]
+    assert seq.scans[1].valid.tolist() == [True, False, True, True, True]
+    assert seq.scans[0].ranges.tolist() == pytest.approx([1.0, 2.0, 20.0, 3.5, 20.0])
+
+
+def test_frames_are_read_only(tmp_path):
+    s = load_carmen(write(tmp_path / "small.clf", SMALL_LOG)).scans[0]
+    with pytest.raises(ValueError, match="read-only"):
+        s.ranges[0] = 5.0
+
+
+def test_max_range_argument_and_param(tmp_path):
+    path = write(tmp_path / "small.clf", SMALL_LOG)
+    seq = load_carmen(path, max_range_m=3.0)
+    assert seq.max_range_m == 3.0
+    assert seq.scans[0].valid.tolist() == [True, True, False, False, False]
+    with_param = SMALL_LOG.replace("PARAM robot_frontlaser_offset", "PARAM robot_front_laser_max 3.5 nohost 0\nPARAM robot_frontlaser_offset")
+    seq = load_carmen(write(tmp_path / "param.clf", with_param))
+    assert seq.max_range_m == 3.5
+    assert seq.scans[0].valid.tolist() == [True, True, False, False, False]
+
+
+def test_no_plateau_keeps_every_positive_reading(tmp_path):
+    log = "\n".join([flaser([1.0, 2.0, 3.0], t=1.0), flaser([0.0, 5.0, 4.0], t=2.0)])
+    seq = load_carmen(write(tmp_path / "a.clf", log))
+    assert seq.scans[1].valid.tolist() == [False, True, True]  # 0 m is never a return
+    assert seq.max_range_m == 5.0
+
+
+def test_nan_readings_become_invalid_with_one_warning(tmp_path):
+    log = "\n".join([flaser([1.0, "nan", 3.0], t=1.0), flaser(["inf", 2.0, "NaN"], t=2.0)])
+    with pytest.warns(RuntimeWarning, match=r"3 NaN/inf range readings") as rec:
+        seq = load_carmen(write(tmp_path / "nan.clf", log))
+    assert len([w for w in rec if "NaN/inf" in str(w.message)]) == 1
+    assert seq.scans[0].valid.tolist() == [True, False, True]
+    assert seq.scans[1].valid.tolist() == [False, True, False]
+
+
+def test_frontlaser_offset_param_sets_the_mount(tmp_path):
+    log = SMALL_LOG.replace("robot_frontlaser_offset 0.0", "robot_frontlaser_offset 0.15")
+    T = load_carmen(write(tmp_path / "off.clf", log)).scans[0].lidar_to_body
+    np.testing.assert_allclose(T, [[1, 0, 0, 0.15], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+
+
+def test_flaser_mount_from_laser_and_robot_poses(tmp_path):
+    # Laser 0.2 m ahead of the robot: laser pose = robot (+) (0.2, 0, 0).
+    lines = []
+    for k, (x, y, th) in enumerate([(0.0, 0.0, 0.0), (1.0, 2.0, np.pi / 2), (3.0, -1.0, -2.0)]):
+        laser = (x + 0.2 * np.cos(th), y + 0.2 * np.sin(th), th)
+        lines.append(flaser([1.0, 2.0, 3.0], pose=laser, odom=(x, y, th), t=float(k)))
+    seq = load_carmen(write(tmp_path / "m.clf", "\n".join(lines)))
+    np.testing.assert_allclose(seq.scans[1].odom, [1.0, 2.0, np.pi / 2], atol=1e-6)  # 6 decimals in the log
+    np.testing.assert_allclose(seq.scans[2].lidar_to_body[:3, 3], [0.2, 0.0, 0.0], atol=1e-5)
+    np.testing.assert_allclose(seq.scans[2].lidar_to_body[:3, :3], np.eye(3), atol=1e-5)
+
+
+def test_flaser_angle_conventions():
+    np.testing.assert_allclose(np.degrees(flaser_beam_angles(180))[[0, 90, 179]], [-90, 0, 89], atol=1e-4)
+    np.testing.assert_allclose(np.degrees(flaser_beam_angles(181))[[0, 90, 180]], [-90, 0, 90], atol=1e-4)
+    np.testing.assert_allclose(np.degrees(flaser_beam_angles(361))[[0, 180, 360]], [-90, 0, 90], atol=1e-4)
+    np.testing.assert_allclose(np.degrees(flaser_beam_angles(100, fov_deg=100, resolution_deg=1.0))[[0, -1]], [-50, 49], atol=1e-4)
+
+
+def test_robotlaser1_log(tmp_path):
+    robot = [(1.0, 2.0, np.pi / 2), (1.5, 2.5, np.pi / 2 + 0.1)]
+    lines = ["PARAM robot_frontlaser_offset 0.5 nohost 0"]  # the records' own offset wins
+    for k, (x, y, th) in enumerate(robot):
+        laser = (x + 0.1 * np.cos(th), y + 0.1 * np.sin(th), th)
+        lines.append(robotlaser1([1.0, 25.0, 2.0, 19.99, "nan"], [100, 200, 300, 400, 500],
+                                 laser, (x, y, th), t=50.0 + k, max_range=20.0))  # fmt: skip
+        lines.append(f"ODOM {x} {y} {th} 0 0 0 {50.0 + k} nohost 0")
+    with pytest.warns(RuntimeWarning, match="2 NaN/inf"):
+        seq = load_carmen(write(tmp_path / "rl.clf", "\n".join(lines)))
+    assert len(seq) == 2
+    s = seq.scans[1]
+    assert s.t == 51.0
+    np.testing.assert_allclose(s.odom, robot[1], atol=1e-6)
+    np.testing.assert_allclose(np.degrees(s.angles), [-90, -89, -88, -87, -86], atol=1e-3)
+    assert s.valid.tolist() == [True, False, True, True, False]  # >= max_range 20, NaN
+    assert seq.max_range_m == 20.0
+    np.testing.assert_allclose(s.lidar_to_body[:3, 3], [0.1, 0, 0], atol=1e-5)
+
+
+def test_robotlaser1_preferred_over_flaser_copies(tmp_path):
+    lines = [
+        robotlaser1([1.0, 2.0], [], (0, 0, 0), (0, 0, 0), t=5.0),
+        flaser([1.0, 2.0], t=5.0),
+    ]
+    with pytest.warns(UserWarning, match="ignoring 1 FLASER"):
+        seq = load_carmen(write(tmp_path / "both.clf", "\n".join(lines)))
+    assert len(seq) == 1
+
+
+def test_relations_beside_log_and_override(tmp_path):
+    write(tmp_path / "small.clf", SMALL_LOG)
+    # The odometry motion from the scan at t=1.0 to the one at t=1.2, in the robot frame at 1.0.
+    x, y, yaw = se2_between([0.0, 0.0, 0.1], [0.5, 0.2, 0.2])
+    write(tmp_path / "small.relations", f"1.000000 1.200000 {x:.9f} {y:.9f} 0 0 0 {yaw:.9f}")
+    write(tmp_path / "other.rel", "# comment\n\n1.0 1.1 0.9 0.3 0.0 0.0 0.0 0.2\n1.1 1.2 -0.4 -0.1 0 0 0 -0.1")
+    seq = load_carmen(tmp_path / "small.clf")
+    np.testing.assert_allclose(seq.relations.rel, [[x, y, yaw]], atol=1e-9)
+    assert seq.sources == [str(tmp_path / "small.clf"), str(tmp_path / "small.relations")]
+    # The relation is exactly the odometry motion: zero error.
+    assert relation_errors(seq.times, seq.odometry, seq.relations)["trans_abs_mean_m"] == pytest.approx(0, abs=1e-9)
+    seq = load_carmen(tmp_path / "small.clf", relations=tmp_path / "other.rel", name="mine")
+    assert seq.name == "mine"
+    np.testing.assert_allclose(seq.relations.t1, [1.0, 1.1])
+    np.testing.assert_allclose(seq.relations.rel, [[0.9, 0.3, 0.2], [-0.4, -0.1, -0.1]])
+
+
+def test_hydra_config_instantiates_the_loader(tmp_path):
+    from hydra.utils import instantiate
+
+    cfg = OmegaConf.load(CONF_DIR / "dataset" / "carmen.yaml")
+    assert OmegaConf.is_missing(cfg, "path")
+    cfg.path = str(write(tmp_path / "small.clf", SMALL_LOG))
+    seq = instantiate(cfg)
+    assert len(seq) == 3 and seq.name == "small"
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(DataError, match=r"nope\.clf\.bz2: file not found"):
+        load_carmen(tmp_path / "nope.clf.bz2")
+
+
+def test_truncated_bzip2(tmp_path):
+    data = bz2.compress(("\n".join([SMALL_LOG] * 200) + "\n").encode())
+    (tmp_path / "cut.clf.bz2").write_bytes(data[: len(data) // 2])
+    with pytest.raises(DataError, match=r"cut\.clf\.bz2: line \d+: bzip2 stream is truncated or corrupt"):
+        load_carmen(tmp_path / "cut.clf.bz2")
+
+
+def test_corrupt_gzip(tmp_path):
+    data = bytearray(gzip.compress(("\n".join([SMALL_LOG] * 200) + "\n").encode()))
+    data[len(data) // 2 : len(data) // 2 + 16] = b"\x00" * 16
+    (tmp_path / "bad.clf.gz").write_bytes(bytes(data))
+    with pytest.raises(DataError, match=r"bad\.clf\.gz: line \d+: gzip stream is truncated or corrupt"):
+        load_carmen(tmp_path / "bad.clf.gz")
+
+
+def test_compressed_suffix_on_plain_text(tmp_path):
+    write(tmp_path / "fake.clf.bz2", SMALL_LOG)
+    with pytest.raises(DataError, match=r"fake\.clf\.bz2: named \.bz2 but is not bzip2 data"):
+        load_carmen(tmp_path / "fake.clf.bz2")
+
+
+def test_gzip_sniffed_despite_plain_suffix(tmp_path):
+    (tmp_path / "sneaky.clf").write_bytes(gzip.compress((SMALL_LOG + "\n").encode()))
+    assert len(load_carmen(tmp_path / "sneaky.clf")) == 3
+
+
+def test_empty_log(tmp_path):
+    with pytest.raises(DataError, match=r"empty\.clf: 3 lines read: no laser scans"):
+        load_carmen(write(tmp_path / "empty.clf", "# nothing\nPARAM a b nohost 0\nODOM 0 0 0 0 0 0 1 nohost 1"))
+
+
+@pytest.mark.parametrize(
+    ("bad_line", "expected"),
+    [
+        # a reading dropped: the line is one value short
+        ("FLASER 3 1.0 2.0 0 0 0 0 0 0 1.5 nohost 0.2", r"line 4 \(FLASER\), field 'logger_timestamp': missing: .*num_readings=3 needs 14"),
+        ("FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 1.5 nohost 0.2 7", r"line 4 \(FLASER\), field 'logger_timestamp': followed by 1 unexpected"),
+        ("FLASER 3 1.0 2.0 x3 0 0 0 0 0 0 1.5 nohost 0.2", r"line 4 \(FLASER\), field 'range\[2\]': expected a number, got 'x3'"),
+        ("FLASER 3 1.0 2.0 3.0 0 0 0 0 0.1.0 0 1.5 nohost 0.2", r"line 4 \(FLASER\), field 'odom_y': expected a number, got '0.1.0'"),
+        ("FLASER 3 1.0 2.0 3.0 0 0 0 nan 0 0 1.5 nohost 0.2", r"line 4 \(FLASER\), field 'odom_x': expected a finite number"),
+        ("FLASER three 1.0 2.0 3.0 0 0 0 0 0 0 1.5 nohost 0.2", r"line 4 \(FLASER\), field 'num_readings': expected a non-negative integer"),
+        ("FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 1.5 nohost zz", r"line 4 \(FLASER\), field 'logger_timestamp': expected a number, got 'zz'"),
+        ("ROBOTLASER1 0 -1.57 3.14 0.01745 20 0.01 0 2 1.0 2.0 0 0 0 0 0 0 0 0 0 0 0 0 1.5 host", r"line 4 \(ROBOTLASER1\), field 'logger_timestamp': missing"),
+        ("ROBOTLASER1 0 -1.57 3.14 0.01745 20 0.01 0 2 1.0 2.0 1 5 0 0 0 0 0 0 0 0 0 0 x 1.5 host 0.1", r"line 4 \(ROBOTLASER1\), field 'turn_axis': expected a number, got 'x'"),
+        ("PARAM robot_frontlaser_offset abc nohost 0", r"line 4 \(PARAM robot_frontlaser_offset\), field 'param_value': expected a number"),
+    ],
+)
+@pytest.mark.filterwarnings("ignore:.*has ROBOTLASER1 and FLASER scans")
+def test_bad_laser_lines_name_file_line_field(tmp_path, bad_line, expected):
+    good = [flaser([1.0, 2.0, 3.0], t=float(k)) for k in range(4)]
+    lines = good[:3] + [bad_line] + good[3:]
+    with pytest.raises(DataError, match=r"broken\.clf: " + expected):
+        load_carmen(write(tmp_path / "broken.clf", "\n".join(lines)))
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("1 2 0.1 0.2 0 0 0 0.3\n1 2 0.1 0.2 0 0 0", r"line 2, field 'yaw': missing: expected 8 values"),
+        ("1 2 0.1 0.2 0 0 0 0.3\n\n1 2 0.1 abc 0 0 0 0.3", r"line 3, field 'y': expected a number, got 'abc'"),
+        ("1 inf 0.1 0.2 0 0 0 0.3", r"line 1, field 't2': expected a finite number"),
+        ("1 2 0.1 0.2 0 0 0 0.3 9", r"line 1, field 'yaw': followed by extra values"),
+        ("# only a comment", r"no relations in file"),
+    ],
+)
+def test_bad_relations(tmp_path, text, expected):
+    with pytest.raises(DataError, match=r"bad\.relations: " + expected):
+        load_relations(write(tmp_path / "bad.relations", text))
+
+
+def test_missing_relations_file_given_explicitly(tmp_path):
+    write(tmp_path / "small.clf", SMALL_LOG)
+    with pytest.raises(DataError, match=r"nowhere\.relations: file not found"):
+        load_carmen(tmp_path / "small.clf", relations=tmp_path / "nowhere.relations")
+
+
+def test_no_warnings_on_a_clean_log(tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_carmen(write(tmp_path / "small.clf", SMALL_LOG))
