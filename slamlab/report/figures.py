@@ -25,7 +25,7 @@ from matplotlib.figure import Figure  # noqa: E402
 
 from slamlab.report.rundir import LogOddsMap, Trajectory  # noqa: E402
 
-DPI = 80
+DPI = 90
 # Fixed colours per trajectory kind, so every figure reads the same way.
 KIND_STYLE = {
     "groundtruth": dict(color="#2ca02c", lw=1.6, label="ground truth"),

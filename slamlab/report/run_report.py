@@ -49,7 +49,7 @@ def _metric_sections(metrics: dict[str, Any]) -> list[tuple[str, list[tuple[str,
     top: list[tuple[str, str]] = []
     subs: list[tuple[str, list[tuple[str, str]]]] = []
     for k, v in metrics.items():
-        if k in ("status", "error"):
+        if k in ("status", "error", "traceback"):
             continue
         if isinstance(v, dict):
             rows = [(kk, fmt_number(vv) if not isinstance(vv, (dict, list)) else json.dumps(vv))

@@ -1,0 +1,462 @@
+"""The comparison report over many runs: a sweep directory, several sweeps, or any runs.
+
+`build_sweep_report` finds run directories, tabulates them with pandas (swept values as
+columns, metrics, best values marked), and draws maps, overlaid trajectories and N_eff
+curves and metric-versus-parameter plots. A run that failed is listed with its error and
+never stops the report from being written.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import shlex
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from slamlab.errors import SlamlabError
+from slamlab.report import figures
+from slamlab.report.columns import ACCURACY_KEYS, METRIC_BY_KEY, METRICS, get_metric
+from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
+from slamlab.report.rundir import (
+    REPORT_FILE,
+    STATUS_FAILED,
+    STATUS_OK,
+    RunDir,
+    _read_yaml,
+    find_run_dirs,
+    flatten,
+    load_run,
+)
+
+log = logging.getLogger(__name__)
+T = TypeVar("T")
+
+SEED_KEY = "seed"
+MAX_SERIES = 8  # lines per metric-vs-parameter panel; more is unreadable
+
+
+@dataclass(slots=True)
+class Cell:
+    """One table cell: shown text, CSS class, a numeric sort key and an optional link."""
+
+    text: str
+    cls: str = ""
+    sort: str | None = None
+    href: str | None = None
+
+
+@dataclass(slots=True)
+class Column:
+    label: str
+    text: bool = False
+    title: str = ""
+
+
+@dataclass(slots=True)
+class Row:
+    label: str
+    status: str
+    cells: list[Cell] = field(default_factory=list)
+
+
+@dataclass(slots=True)
+class Table:
+    columns: list[Column]
+    rows: list[Row]
+
+
+def _safe(what: str, fn: Callable[[], T]) -> T | None:
+    """Run one optional piece of the report; a broken artifact costs its figure, not the page."""
+    try:
+        return fn()
+    except Exception as exc:  # noqa: BLE001 - reported in the log, section omitted
+        log.warning("sweep report: %s failed: %s", what, exc)
+        return None
+
+
+def _load_safely(path: Path) -> RunDir:
+    """load_run, but an unreadable run becomes a failed run carrying the reason."""
+    try:
+        return load_run(path)
+    except SlamlabError as exc:
+        overrides = _read_yaml(path / ".hydra" / "overrides.yaml")
+        config = _read_yaml(path / ".hydra" / "config.yaml")
+        return RunDir(path=path, status=STATUS_FAILED, error=f"unreadable run directory: {exc}", metrics={},
+                      manifest={}, config=config if isinstance(config, dict) else {},
+                      overrides=[str(o) for o in overrides] if isinstance(overrides, list) else [])
+
+
+def _parse_value(v: Any) -> Any:
+    """Override text to a Python value ("50" -> 50) so parameters sort and plot as numbers."""
+    if not isinstance(v, str):
+        return v
+    try:
+        return yaml.safe_load(v)
+    except yaml.YAMLError:
+        return v
+
+
+def _value_text(v: Any) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, (dict, list)):
+        return yaml.safe_dump(v, default_flow_style=True, width=10_000).strip()
+    return fmt_number(v)
+
+
+def run_labels(runs: Sequence[RunDir]) -> list[str]:
+    """Short unique names: job numbers within one sweep, else paths relative to the common
+    ancestor (e.g. `10-00-00/3`)."""
+    paths = [r.path for r in runs]
+    if len(paths) == 1:
+        return [paths[0].name]
+    if len({p.parent for p in paths}) == 1:
+        return [p.name for p in paths]
+    common = Path(os.path.commonpath([str(p) for p in paths]))
+    return [str(p.relative_to(common)) for p in paths]
+
+
+def swept_parameters(runs: Sequence[RunDir]) -> tuple[list[str], dict[str, list[Any]], list[str]]:
+    """(swept keys, values per key per run, common overrides).
+
+    Swept = override keys whose values differ between runs. When runs were started with
+    identical overrides but still differ in config (e.g. different defaults), the differing
+    config keys are used instead, so the table always says what changed."""
+    per_run = [r.overrides_dict() for r in runs]
+    keys: list[str] = []
+    for d in per_run:
+        for k in d:
+            if k not in keys:
+                keys.append(k)
+    swept = [k for k in keys if len({d.get(k) for d in per_run}) > 1]
+    common = [f"{k}={per_run[0][k]}" for k in keys if k not in swept and all(k in d for d in per_run)]
+    values = {k: [_parse_value(d.get(k)) for d in per_run] for k in swept}
+    if not swept and len(runs) > 1:
+        diff = config_differences(runs)
+        for k in list(diff)[:6]:
+            swept.append(k)
+            values[k] = diff[k]
+    return swept, values, common
+
+
+def config_differences(runs: Sequence[RunDir]) -> dict[str, list[Any]]:
+    """Flattened config keys whose values differ between runs -> value per run (None = absent)."""
+    flats = [flatten(r.config) for r in runs if r.config]
+    if len(flats) < 2:
+        return {}
+    keys: list[str] = []
+    for f in flats:
+        for k in f:
+            if k not in keys:
+                keys.append(k)
+    out: dict[str, list[Any]] = {}
+    all_flats = [flatten(r.config) for r in runs]
+    for k in keys:
+        vals = [f.get(k) for f in all_flats]
+        if len({yaml.safe_dump(v) for v in vals}) > 1:
+            out[k] = vals
+    return out
+
+
+def runs_dataframe(runs: Sequence[RunDir], labels: Sequence[str], swept: Sequence[str],
+                   values: dict[str, list[Any]]) -> pd.DataFrame:
+    """One row per run: label, status, swept values, every known metric (NaN when absent),
+    error and path. This is the data behind the HTML table and runs.csv."""
+    rows = []
+    for i, r in enumerate(runs):
+        row: dict[str, Any] = {"run": labels[i], "status": r.status}
+        for k in swept:
+            row[k] = values[k][i]
+        for spec in METRICS:
+            row[spec.key] = get_metric(r.metrics, spec.key)
+        row["particles_metric"] = r.particles
+        row["error"] = r.error if r.status != STATUS_OK else None
+        row["path"] = str(r.path)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _best_mask(df: pd.DataFrame, key: str) -> pd.Series:
+    """Cells holding the best value of a metric among ok runs (ties all marked)."""
+    spec = METRIC_BY_KEY[key]
+    ok = df["status"] == STATUS_OK
+    col = df[key].where(ok)
+    if spec.better is None or col.notna().sum() < 2 or col.nunique() < 2:
+        return pd.Series(False, index=df.index)
+    best = col.min() if spec.better == "min" else col.max()
+    return np.isclose(col, best, rtol=1e-12, atol=0.0) & ok
+
+
+def _rel_href(target: Path, out_dir: Path) -> str:
+    return Path(os.path.relpath(target, out_dir)).as_posix()
+
+
+def html_table(df: pd.DataFrame, runs: Sequence[RunDir], swept: Sequence[str], out_dir: Path) -> tuple[Table, list[str]]:
+    """The every-run table with links, sort keys and best marks; returns it and the metric keys shown."""
+    metric_keys = [m.key for m in METRICS if m.table and df[m.key].notna().any()]
+    has_err = any(not r.ok for r in runs)
+    cols = [Column("run", True, "run directory (links to its report)"), Column("status", True)]
+    cols += [Column(k, False, "swept parameter") for k in swept]
+    # The error sits next to the parameters so a failed row is readable without scrolling.
+    if has_err:
+        cols.append(Column("error", True, "full text under 'Failed or incomplete runs'"))
+    cols += [Column(METRIC_BY_KEY[k].label, False, k) for k in metric_keys]
+    best = {k: _best_mask(df, k) for k in metric_keys}
+    rows: list[Row] = []
+    for i, r in enumerate(runs):
+        rec = df.iloc[i]
+        report = r.path / REPORT_FILE
+        cells = [Cell(str(rec["run"]), "text", None, _rel_href(report, out_dir) if report.is_file() else None),
+                 Cell(r.status, "text")]
+        for k in swept:
+            v = rec[k]
+            num = isinstance(v, (int, float)) and not isinstance(v, bool)
+            cells.append(Cell(_value_text(v), "", repr(float(v)) if num else None))
+        if has_err:
+            err = r.error if not r.ok and r.error else ""
+            cells.append(Cell(err if len(err) <= 60 else err[:57] + "...", "err"))
+        for k in metric_keys:
+            v = float(rec[k])
+            cls = "best" if bool(best[k].iloc[i]) else ""
+            cells.append(Cell(fmt_number(v), cls, "" if math.isnan(v) else repr(v)))
+        rows.append(Row(str(rec["run"]), r.status, cells))
+    return Table(cols, rows), metric_keys
+
+
+def _config_groups(df: pd.DataFrame, others: Sequence[str]) -> list[tuple[tuple, pd.DataFrame]]:
+    if not others:
+        return [((), df)]
+    keyed = df.assign(_g=df[list(others)].astype(str).agg(" ".join, axis=1))
+    out = []
+    for _, g in keyed.groupby("_g", sort=False):
+        out.append((tuple(g.iloc[0][k] for k in others), g))
+    return out
+
+
+def seed_aggregate(df: pd.DataFrame, swept: Sequence[str], metric_keys: Sequence[str]) -> Table | None:
+    """Mean ± std across seeds per configuration, when a sweep repeats seeds."""
+    if SEED_KEY not in swept:
+        return None
+    ok = df[df["status"] == STATUS_OK]
+    others = [k for k in swept if k != SEED_KEY]
+    groups = _config_groups(ok, others)
+    if not groups or max(len(g) for _, g in groups) < 2:
+        return None
+    keys = [k for k in metric_keys if k in ACCURACY_KEYS or k in ("runtime_s", "scans_per_s", "neff_mean", "trajectory.mean_m")]
+    cols = [Column(k, False) for k in others] + [Column("n seeds")] + [Column(METRIC_BY_KEY[k].label) for k in keys]
+    rows = []
+    for vals, g in groups:
+        cells = [Cell(_value_text(v), "", repr(float(v)) if isinstance(v, (int, float)) and not isinstance(v, bool) else None)
+                 for v in vals]
+        cells.append(Cell(str(len(g)), "", str(len(g))))
+        for k in keys:
+            col = g[k].dropna()
+            if col.empty:
+                cells.append(Cell("–", "", ""))
+                continue
+            mean, std = float(col.mean()), float(col.std(ddof=1)) if len(col) > 1 else 0.0
+            cells.append(Cell(f"{fmt_number(mean)} ± {fmt_number(std, 2)}", "", repr(mean)))
+        rows.append(Row(" ".join(map(str, vals)), STATUS_OK, cells))
+    return Table(cols, rows)
+
+
+def param_plots(df: pd.DataFrame, swept: Sequence[str], metric_keys: Sequence[str]) -> list[dict[str, str]]:
+    """Accuracy and runtime versus each swept parameter (seed excluded: it is averaged over).
+    Other swept parameters become separate lines; seeds become mean ± std with the points."""
+    ok = df[df["status"] == STATUS_OK]
+    params = [k for k in swept if k != SEED_KEY]
+    if ok.empty or not params:
+        return []
+    panel_keys = [k for k in ACCURACY_KEYS if k in metric_keys][:1]
+    panel_keys += [k for k in ("runtime_s",) if k in metric_keys]
+    if not panel_keys:
+        return []
+    out = []
+    for p in params:
+        vals = [v for v in ok[p].tolist()]
+        numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals)
+        cats = None if numeric else sorted({str(v) for v in vals})
+        xmap = (lambda v: float(v)) if numeric else (lambda v, c=cats: float(c.index(str(v))))
+        others = [k for k in params if k != p]
+        groups = _config_groups(ok, others)[:MAX_SERIES]
+        panels = []
+        for key in panel_keys:
+            series = []
+            for gvals, g in groups:
+                gx = np.array([xmap(v) for v in g[p]])
+                gy = g[key].to_numpy(dtype=float)
+                keep = ~np.isnan(gy)
+                gx, gy = gx[keep], gy[keep]
+                if gx.size == 0:
+                    continue
+                xs = np.unique(gx)
+                mean = np.array([gy[gx == x].mean() for x in xs])
+                std = np.array([gy[gx == x].std(ddof=1) if (gx == x).sum() > 1 else 0.0 for x in xs])
+                label = " ".join(f"{k}={_value_text(v)}" for k, v in zip(others, gvals))
+                series.append(figures.Series(label, xs, mean, std, gx, gy))
+            if series:
+                panels.append((METRIC_BY_KEY[key].label, series))
+        if panels:
+            out.append({"title": f"versus {p}", "img": figures.metric_vs_param(p, panels, cats)})
+    return out
+
+
+def _sweep_commands(runs: Sequence[RunDir]) -> list[str]:
+    """`slamlab -m ...` for every sweep the runs came from (multirun.yaml beside the jobs)."""
+    cmds: list[str] = []
+    for root in dict.fromkeys(r.path.parent for r in runs):
+        mr = _read_yaml(root / "multirun.yaml")
+        if not isinstance(mr, dict):
+            continue
+        task = (((mr.get("hydra") or {}).get("overrides") or {}).get("task")) or []
+        cmd = "slamlab -m " + " ".join(shlex.quote(str(t)) for t in task)
+        cmds.append(f"{cmd.strip()}    # {root}")
+    return cmds
+
+
+def _short_params(swept: Sequence[str], values: dict[str, list[Any]], i: int) -> str:
+    return " ".join(f"{k.split('.')[-1]}={_value_text(values[k][i])}" for k in swept)
+
+
+def _primary_metric(df: pd.DataFrame) -> str | None:
+    for k in ACCURACY_KEYS:
+        if k in df and df.loc[df["status"] == STATUS_OK, k].notna().any():
+            return k
+    return None
+
+
+def build_sweep_report(
+    dirs: Sequence[Path],
+    out_dir: Path,
+    title: str | None = None,
+    *,
+    filename: str = REPORT_FILE,
+) -> Path:
+    """Compare every run found at or under `dirs`; write `out_dir/<filename>` (self-contained
+    HTML, atomically) and `out_dir/runs.csv` (the table). Returns the HTML path.
+
+    Raises SlamlabError when a path does not exist or holds no run directory. Failed or
+    unreadable runs are listed with their error; they never stop the report."""
+    out_dir = Path(out_dir)
+    run_paths = find_run_dirs([Path(d) for d in dirs])
+    runs = [_load_safely(p) for p in run_paths]
+    labels = run_labels(runs)
+    swept, values, common = swept_parameters(runs)
+    df = runs_dataframe(runs, labels, swept, values)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    table, metric_keys = html_table(df, runs, swept, out_dir.resolve())
+
+    display = [f"{labels[i]}: {_short_params(swept, values, i)}" if swept else labels[i] for i in range(len(runs))]
+    ok_idx = [i for i, r in enumerate(runs) if r.ok]
+
+    # Maps side by side, and every SLAM path over one map (the most accurate run's).
+    grid_items = []
+    for i in ok_idx:
+        m = _safe(f"map of {labels[i]}", runs[i].load_map)
+        tr = _safe(f"trajectory of {labels[i]}", lambda i=i: runs[i].load_trajectory("slam"))
+        if m is not None or tr is not None:
+            grid_items.append((display[i], m, tr))
+    grid_img = _safe("map grid", lambda: figures.map_grid(grid_items)) if grid_items else None
+
+    overlay_img, overlay_note = None, ""
+    datasets = {(runs[i].dataset, runs[i].manifest.get("data_fingerprint")) for i in ok_idx}
+    primary = _primary_metric(df)
+    if ok_idx:
+        bg = ok_idx[0]
+        if primary is not None:
+            col = df[primary].where(df["status"] == STATUS_OK)
+            if col.notna().any():
+                better = METRIC_BY_KEY[primary].better
+                bg = int(col.idxmin() if better != "max" else col.idxmax())
+        paths = [(display[i], t) for i in ok_idx
+                 if (t := _safe("trajectory", lambda i=i: runs[i].load_trajectory("slam"))) is not None]
+        if paths and len(datasets) == 1:
+            gt = _safe("ground truth", lambda: runs[bg].load_trajectory("groundtruth"))
+            odo = _safe("odometry", lambda: runs[bg].load_trajectory("odometry"))
+            overlay_img = _safe("overlay", lambda: figures.trajectories_overlay(
+                _safe("map", runs[bg].load_map), f"run {labels[bg]}", paths, gt, odo))
+            overlay_note = (f"Background: the map of run {labels[bg]}"
+                            + (f" (best {METRIC_BY_KEY[primary].label})" if primary else "")
+                            + ". Black: ground truth; dashed red: odometry; one colour per run.")
+        elif len(datasets) > 1:
+            overlay_note = "Runs use different datasets, so their trajectories are not overlaid."
+
+    # N_eff curves; normalised by N when particle counts differ, else raw.
+    curves = []
+    smooth_windows: list[int] = []
+    parts = {runs[i].particles for i in ok_idx}
+    normalise = len(parts) > 1
+    for i in ok_idx:
+        steps = _safe(f"steps of {labels[i]}", runs[i].load_steps)
+        if steps is None or "neff" not in steps or not len(steps):
+            continue
+        t = steps["t"].to_numpy(float) if "t" in steps else np.arange(len(steps), dtype=float)
+        y = steps["neff"].to_numpy(float)
+        if normalise and runs[i].particles:
+            y = y / runs[i].particles
+        # N_eff saw-tooths between resamplings; overlaid raw, a dozen runs are a solid band.
+        # A centred rolling mean over ~1/50 of the run keeps the trend comparable.
+        win = max(1, len(y) // 50)
+        if win > 1:
+            y = pd.Series(y).rolling(win, center=True, min_periods=1).mean().to_numpy()
+        smooth_windows.append(win)
+        curves.append((display[i], t, y))
+    neff_img = _safe("N_eff overlay", lambda: figures.neff_overlay(curves, "N_eff / N" if normalise else "N_eff")) if curves else None
+    neff_note = ("N_eff divided by each run's particle count N, since N differs between runs."
+                 if normalise else "N_eff per filter step of every run.")
+    if smooth_windows and max(smooth_windows) > 1:
+        neff_note += (f" Smoothed by a centred rolling mean over {min(smooth_windows)}–{max(smooth_windows)} steps"
+                      " (each run's report shows the raw curve with its resampling events).")
+
+    plots = _safe("parameter plots", lambda: param_plots(df, swept, metric_keys)) or []
+    aggregate = _safe("seed aggregate", lambda: seed_aggregate(df, swept, metric_keys))
+
+    diff = config_differences(runs)
+    diff_table = None
+    if diff:
+        diff_table = {"columns": ["run", *diff.keys()],
+                      "rows": [[labels[i], *(_value_text(diff[k][i]) for k in diff)] for i in range(len(runs))]}
+    base = next((r.config for r in runs if r.config), None)
+
+    failed = [{"label": labels[i], "status": r.status, "error": r.error or "", "log_tail": r.log_tail,
+               "params": _short_params(swept, values, i)} for i, r in enumerate(runs) if not r.ok]
+
+    if title is None:
+        roots = {r.path.parent for r in runs}
+        title = f"Sweep {next(iter(roots))}" if len(roots) == 1 and len(runs) > 1 else f"Comparison of {len(runs)} runs"
+    html = render(
+        "sweep.html",
+        title=title,
+        version=package_version(),
+        generated=now_text(),
+        n_runs=len(runs),
+        n_ok=len(ok_idx),
+        n_bad=len(runs) - len(ok_idx),
+        sources=[str(d) for d in dirs],
+        sweep_cmds=_sweep_commands(runs),
+        common=" ".join(common),
+        table=table,
+        failed=failed,
+        param_plots=plots,
+        param_note=("Points: single runs; markers with bars: mean ± standard deviation across seeds."
+                    if SEED_KEY in swept else "One point per run."),
+        aggregate=aggregate,
+        overlay_img=overlay_img,
+        overlay_note=overlay_note,
+        grid_img=grid_img,
+        neff_img=neff_img,
+        neff_note=neff_note,
+        diff=diff_table,
+        base_config=yaml.safe_dump(base, sort_keys=False) if base else None,
+    )
+    csv = df.drop(columns=["particles_metric"])
+    atomic_write_text(out_dir / "runs.csv", csv.to_csv(index=False))
+    return atomic_write_text(out_dir / filename, html)

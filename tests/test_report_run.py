@@ -1,0 +1,70 @@
+"""The per-run report.html: self-contained, every section present when its inputs are."""
+
+from __future__ import annotations
+
+import html
+import json
+import re
+from pathlib import Path
+
+from report_fixtures import make_run_dir
+from slamlab.report import write_run_report
+from slamlab.report.html import fmt_number
+
+
+def _external_refs(page: str) -> list[str]:
+    """src/href values that would need the network (links to local files are fine)."""
+    refs = re.findall(r'(?:src|href)="([^"]+)"', page)
+    return [r for r in refs if re.match(r"^(https?:)?//", r)]
+
+
+def test_run_report_content(tmp_path: Path) -> None:
+    d = make_run_dir(tmp_path / "run", overrides=["particles=40", "seed=7", "dataset.duration_s=10"], texture=True)
+    out = write_run_report(d)
+    assert out == d / "report.html"
+    page = out.read_text()
+    assert not _external_refs(page), "report must open with no network"
+    assert "<script src" not in page and "<link" not in page
+    # Map, texture, N_eff, best weight / step time: four embedded PNGs at least.
+    assert page.count("data:image/png;base64,") >= 4
+    for section in ('id="map"', 'id="texture"', 'id="filter"', 'id="metrics"', 'id="config"'):
+        assert section in page
+    assert "ground truth" in page and "threshold" in page and "resampler.threshold = 0.5 × N" in page
+    # Every top-level metric number appears as formatted in the table.
+    metrics = json.loads((d / "metrics.json").read_text())
+    for key in ("runtime_s", "scans_per_s", "resample_count", "neff_mean", "peak_memory_mb"):
+        assert f"<td>{fmt_number(metrics[key])}</td>" in page, key
+    assert f"<td>{fmt_number(metrics['trajectory']['rmse_m'])}</td>" in page
+    # How to re-run it: the overrides, and the exact saved config.
+    assert "slamlab particles=40 seed=7 dataset.duration_s=10" in html.unescape(page)
+    assert "--config-name config" in page
+    # Atomic write leaves no temp file behind.
+    assert not [p for p in d.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_run_report_without_ground_truth_or_steps(tmp_path: Path) -> None:
+    d = make_run_dir(tmp_path / "run", groundtruth=False)
+    (d / "steps.csv").unlink()
+    (d / "steps.parquet").unlink()
+    page = write_run_report(d).read_text()
+    assert "No ground truth for this dataset." in page
+    assert "No per-step table" in page
+    assert 'id="texture"' not in page
+
+
+def test_failed_run_report(tmp_path: Path) -> None:
+    d = make_run_dir(tmp_path / "a", failure="metrics")
+    page = write_run_report(d).read_text()
+    assert "This run failed" in page and "expected 360 beams" in page
+    d = make_run_dir(tmp_path / "b", failure="log")
+    page = write_run_report(d).read_text()
+    assert "MemoryError" in page and "No map or trajectory" in page
+
+
+def test_user_text_is_escaped(tmp_path: Path) -> None:
+    d = make_run_dir(tmp_path / "a", failure="metrics")
+    m = json.loads((d / "metrics.json").read_text())
+    m["error"] = "<script>alert(1)</script>"
+    (d / "metrics.json").write_text(json.dumps(m))
+    page = write_run_report(d).read_text()
+    assert "<script>alert(1)" not in page and "&lt;script&gt;alert(1)" in page
