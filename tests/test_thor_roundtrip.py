@@ -276,3 +276,26 @@ def test_hydra_config_instantiates(tmp_path: Path) -> None:
         warnings.simplefilter("error")
         seq = instantiate(cfg)
     assert len(seq) == N_SCANS and seq.name == "thor-train_lidar2"
+
+
+def test_rgbd_memory_is_bounded_by_a_frame_not_a_file(tmp_path: Path) -> None:
+    """Streaming reads one colour frame at a time, never a whole RGB file."""
+    import tracemalloc
+
+    make_log(tmp_path)
+    z3, z2 = np.zeros(3), np.zeros(2)
+    img = np.random.default_rng(0).integers(0, 256, (120, 160, 3)).astype(np.uint8)  # 57.6 kB
+    td = T0 + np.arange(40) * 0.1
+    write_depth_mat(tmp_path / "DEPTH_0.mat", [DepthRecord(t, np.full((12, 16), 900, np.uint16), z3, z3, z2) for t in td])
+    write_rgb_mats(tmp_path, 0, (RGBRecord(t, img, z3, z3, z2) for t in td), frames_per_file=20)  # 1.15 MB files
+    seq = load_thor(tmp_path)
+    tracemalloc.start()
+    n = same = 0
+    for f in seq.rgbd():
+        same += int(f.rgb is not None and f.rgb.shape == img.shape and f.rgb[7, 9, 1] == img[7, 9, 1])
+        n += 1
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert n == same == 40
+    # About: the frame being handed out + the one being read (+ its raw buffer); a file is 20.
+    assert peak < 5 * img.nbytes, f"peak {peak} bytes while streaming"

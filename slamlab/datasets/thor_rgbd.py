@@ -192,7 +192,7 @@ class _Reader:
             return "".join(map(chr, codes))  # rows of a char matrix are concatenated
         if cls in _MX_DTYPES:
             typ, b = self.data()
-            arr = self.array(typ, b).astype(_MX_DTYPES[cls])
+            arr = self.array(typ, b).astype(_MX_DTYPES[cls], copy=False)  # no copy when stored as its class
             if flags & 0x0800:  # complex
                 typ_i, b_i = self.data()
                 arr = arr + 1j * self.array(typ_i, b_i)
@@ -386,10 +386,13 @@ class RGBDStream:
             if any(base <= i < base + n_here for i in needed):
                 for k, rec in enumerate(iter_struct_cell(path, "RGB", want_last=lambda k, b=base: (b + k) in needed)):
                     if (base + k) in needed:
-                        img = np.asarray(list(rec.values())[-1])
+                        field = list(rec)[-1]
+                        img = np.asarray(rec.pop(field))
                         if img.ndim != 3 or img.shape[2] != 3:
-                            raise DataError(path, f"expected an HxWx3 image, got shape {img.shape}", record=f"frame {k}", field=list(rec)[-1])
-                        yield base + k, np.ascontiguousarray(np.flip(img.astype(np.uint8, copy=False), 1))
+                            raise DataError(path, f"expected an HxWx3 image, got shape {img.shape}", record=f"frame {k}", field=field)
+                        out = np.ascontiguousarray(np.flip(img.astype(np.uint8, copy=False), 1))  # un-mirror
+                        del img, rec  # drop the raw buffer before handing the frame out
+                        yield base + k, out
             base += n_here
 
     def _frames(self) -> Iterator[RGBDFrame]:
@@ -399,13 +402,16 @@ class RGBDStream:
         for k, rec in enumerate(iter_struct_cell(self.depth_path, "DEPTH")):
             if k >= self.count:
                 break
-            names = list(rec)
-            raw = np.asarray(rec[names[-1]])
+            field = list(rec)[-1]
+            raw = np.asarray(rec.pop(field))
+            del rec
             if raw.ndim != 2:
-                raise DataError(self.depth_path, f"expected an HxW depth image, got shape {raw.shape}", record=f"frame {k}", field=names[-1])
+                raise DataError(self.depth_path, f"expected an HxW depth image, got shape {raw.shape}", record=f"frame {k}", field=field)
             mm = np.flip(raw, 1).astype(np.float32)  # un-mirror
+            del raw
             ok = (mm >= DEPTH_MIN_MM) & (mm <= DEPTH_MAX_MM)  # also drops NaN
-            depth_m = np.where(ok, mm / np.float32(1000.0), np.float32(0.0)).astype(np.float32)  # mm / 1000 is exact-rounded
+            depth_m = np.where(ok, mm / np.float32(1000.0), np.float32(0.0)).astype(np.float32, copy=False)  # exact-rounded
+            del mm, ok
             rgb, rgb_t = None, float("nan")
             want = int(self.rgb_index[k])
             if want >= 0:
