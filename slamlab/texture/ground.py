@@ -1,0 +1,223 @@
+"""Floor detectors: which depth pixels see the ground. Chosen by the `ground/` config group.
+
+Each detector is a small class built by `hydra.utils.instantiate` from `conf/ground/NAME.yaml`
+(`_target_` + its knobs). A detector is called with a `GroundQuery` (the frame's valid depth
+points, their camera-to-world transform) and returns a bool mask over the points.
+Adding a detector = one class here (or anywhere importable) + one YAML file.
+
+World frame: z up, z = 0 on the floor (the body origin is `body_height_m` above it).
+
+| detector | test | cost at 512x424 (see benchmarks/bench_texture.py) |
+| --- | --- | --- |
+| `threshold` | world height |z| < tolerance_m | cheapest: one 3x3 transform per point |
+| `plane` | Open3D RANSAC `segment_plane` on a subsample of the world points; accepted when the normal is within `max_tilt_deg` of vertical and the plane within `max_height_m` of z = 0; inliers within `distance_threshold_m` | RANSAC on `fit_max_points`, plus an Open3D copy |
+| `image_plane` | the slides' test |a0' u + a1' v + a2' + a3' d| < eps in image and inverse-depth coordinates, the a' from the head's pose | no 3D transform at all |
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slamlab.frames import CameraIntrinsics
+from slamlab.texture.backproject import DepthPoints
+
+
+class GroundQuery:
+    """One frame's input to a detector.
+
+    `points`: the valid depth pixels (IR frame); `T_world_cam` (4, 4): the IR optical frame in
+    the world (z = 0 on the floor) at the frame's time; `intrinsics`: the IR camera, scaled to
+    this depth image. `world` (M, 3) float32 is computed on first use and cached (the texture
+    pipeline reuses it)."""
+
+    __slots__ = ("points", "T_world_cam", "intrinsics", "_world")
+
+    def __init__(self, points: DepthPoints, T_world_cam: np.ndarray, intrinsics: CameraIntrinsics):
+        self.points = points
+        self.T_world_cam = np.asarray(T_world_cam, dtype=np.float64)
+        self.intrinsics = intrinsics
+        self._world: np.ndarray | None = None
+
+    def _transform(self, rx: np.ndarray, ry: np.ndarray, z: np.ndarray) -> np.ndarray:
+        # World = z * (R @ (rx, ry, 1)) + t, evaluated per axis on contiguous float32 arrays:
+        # several times faster than an (M, 3) @ (3, 3) matmul at 200k points.
+        R = self.T_world_cam[:3, :3].astype(np.float32)
+        t = self.T_world_cam[:3, 3].astype(np.float32)
+        out = np.empty((z.shape[0], 3), dtype=np.float32)
+        for k in range(3):
+            out[:, k] = z * (R[k, 0] * rx + R[k, 1] * ry + R[k, 2]) + t[k]
+        return out
+
+    @property
+    def world(self) -> np.ndarray:
+        """(M, 3) float32 world coordinates (m)."""
+        if self._world is None:
+            p = self.points
+            self._world = self._transform(p.ray_x, p.ray_y, p.depth_m)
+        return self._world
+
+    def world_at(self, idx: np.ndarray) -> np.ndarray:
+        """(K, 3) float32 world coordinates of the points `idx` only (no full transform unless cached)."""
+        if self._world is not None:
+            return self._world[idx]
+        p = self.points
+        return self._transform(p.ray_x[idx], p.ray_y[idx], p.depth_m[idx])
+
+    def world_z(self) -> np.ndarray:
+        """(M,) float32 world height (m); cheaper than `world` when only z is needed."""
+        if self._world is not None:
+            return self._world[:, 2]
+        p = self.points
+        r = self.T_world_cam[2, :3].astype(np.float32)
+        return p.depth_m * (r[0] * p.ray_x + r[1] * p.ray_y + r[2]) + np.float32(self.T_world_cam[2, 3])
+
+
+class GroundDetector:
+    """Base class: `detector(query) -> (M,) bool`, True where the point is floor."""
+
+    name: str = "ground"
+
+    def __call__(self, query: GroundQuery) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+class ThresholdGround(GroundDetector):
+    """Floor = world height within `tolerance_m` of z = 0.
+
+    Relies entirely on the pose chain (body height, roll/pitch, head angles): errors in those
+    tilt the apparent floor, so far points fail first. 5 cm suits the Kinect's noise to ~3 m."""
+
+    def __init__(self, tolerance_m: float = 0.05, name: str = "threshold"):
+        if tolerance_m <= 0:
+            raise ValueError(f"tolerance_m must be > 0, got {tolerance_m}")
+        self.tolerance_m = float(tolerance_m)
+        self.name = name
+
+    def __call__(self, query: GroundQuery) -> np.ndarray:
+        return np.abs(query.world_z()) < self.tolerance_m
+
+
+class PlaneGround(GroundDetector):
+    """Floor = the inliers of a RANSAC plane (Open3D `segment_plane`) that looks like the floor.
+
+    Up to `max_planes` planes are tried (a wall may be the dominant plane); a plane is accepted
+    when its normal is within `max_tilt_deg` of vertical and its height at the camera's (x, y)
+    is within `max_height_m` of z = 0. RANSAC runs on at most `fit_max_points` randomly chosen
+    points (the fit needs few; cost scales with points x iterations), then inliers are taken
+    over all points with `distance_threshold_m`. Seeded, so runs are reproducible."""
+
+    def __init__(
+        self,
+        distance_threshold_m: float = 0.03,
+        ransac_n: int = 3,
+        num_iterations: int = 200,
+        max_tilt_deg: float = 10.0,
+        max_height_m: float = 0.15,
+        fit_max_points: int = 5000,
+        max_planes: int = 3,
+        min_inliers: int = 200,
+        seed: int = 0,
+        name: str = "plane",
+    ):
+        self.distance_threshold_m = float(distance_threshold_m)
+        self.ransac_n = int(ransac_n)
+        self.num_iterations = int(num_iterations)
+        self.min_cos_tilt = float(np.cos(np.deg2rad(max_tilt_deg)))
+        self.max_height_m = float(max_height_m)
+        self.fit_max_points = int(fit_max_points)
+        self.max_planes = int(max_planes)
+        self.min_inliers = int(min_inliers)
+        self.seed = int(seed)
+        self.name = name
+        self._rng = np.random.default_rng(seed)
+        # Last frame's accepted plane (a, b, c, d) with a x + b y + c z + d = 0, or None.
+        self.last_plane: np.ndarray | None = None
+
+    def __call__(self, query: GroundQuery) -> np.ndarray:
+        import open3d as o3d  # imported here: Open3D takes ~2 s to import
+
+        world = query.world
+        n = world.shape[0]
+        mask = np.zeros(n, dtype=bool)
+        self.last_plane = None
+        if n < max(self.ransac_n, self.min_inliers):
+            return mask
+        o3d.utility.random.seed(self.seed)
+        cam_xy = query.T_world_cam[:2, 3]
+        remaining = np.arange(n)
+        for _ in range(self.max_planes):
+            if remaining.size < max(self.ransac_n, self.min_inliers):
+                break
+            if remaining.size > self.fit_max_points:
+                sub = self._rng.choice(remaining, size=self.fit_max_points, replace=False)
+            else:
+                sub = remaining
+            pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(world[sub].astype(np.float64)))
+            plane, inl = pcd.segment_plane(
+                distance_threshold=self.distance_threshold_m,
+                ransac_n=self.ransac_n,
+                num_iterations=self.num_iterations,
+            )
+            plane = np.asarray(plane, dtype=np.float64)
+            norm = np.linalg.norm(plane[:3])
+            if len(inl) < self.ransac_n or norm == 0:
+                break
+            plane = plane / norm
+            # Residual over ALL remaining points, not just the fitted subsample.
+            dist = np.abs(world[remaining] @ plane[:3].astype(np.float32) + np.float32(plane[3]))
+            inliers = remaining[dist < self.distance_threshold_m]
+            a, b, c, d = plane
+            if abs(c) >= self.min_cos_tilt:
+                height = -(a * cam_xy[0] + b * cam_xy[1] + d) / c
+                if abs(height) <= self.max_height_m and inliers.size >= self.min_inliers:
+                    mask[inliers] = True
+                    self.last_plane = plane
+                    return mask
+            # Not the floor (a wall, a table): remove its inliers and look for the next plane.
+            keep = np.ones(n, dtype=bool)
+            keep[inliers] = False
+            remaining = remaining[keep[remaining]]
+        return mask
+
+
+def image_plane_coefficients(T_world_cam: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
+    """The slides' floor coefficients (a0', a1', a2', a3') for pixels (u, v) and inverse depth d.
+
+    The floor z_w = 0 in camera coordinates is n . P + h = 0 with n = R^T e_z (the world's
+    up axis seen from the camera) and h the camera's height. With P = z ((u - cu)/fu,
+    (v - cv)/fv, 1) and d = 1/z, dividing by z gives
+        a0' u + a1' v + a2' + a3' d = 0,
+        a0' = n_x / fu, a1' = n_y / fv, a2' = n_z - n_x cu / fu - n_y cv / fv, a3' = h.
+    The left side equals (world height of the pixel's point) / z, so |.| < eps is a height
+    tolerance that grows with range (eps * z), like the Kinect's own depth noise."""
+    T = np.asarray(T_world_cam, dtype=np.float64)
+    n = T[2, :3]  # row 2 of R = R^T e_z
+    h = T[2, 3]
+    fu, fv = intrinsics.fc
+    cu, cv = intrinsics.cc
+    return np.array([n[0] / fu, n[1] / fv, n[2] - n[0] * cu / fu - n[1] * cv / fv, h])
+
+
+class ImagePlaneGround(GroundDetector):
+    """Floor = pixels whose (u, v, 1/depth) satisfy the floor plane predicted by the head pose.
+
+    Tests |n . ray + h d| < eps with ray = the pixel's normalised ray (x/z, y/z, 1). Without
+    lens undistortion the ray is ((u - cu)/fu, (v - cv)/fv, 1) and the test is exactly the
+    slides' |a0' u + a1' v + a2' + a3' d| < eps (`image_plane_coefficients`); with undistortion
+    on, the corrected ray is used instead, because the Kinect IR lens bends corner rays by up
+    to ~9 %, which would otherwise reject the floor in the image corners.
+    `eps` is dimensionless: the height tolerance is eps x depth (0.02 -> 2 cm at 1 m, 6 cm at 3 m)."""
+
+    def __init__(self, eps: float = 0.02, name: str = "image_plane"):
+        if eps <= 0:
+            raise ValueError(f"eps must be > 0, got {eps}")
+        self.eps = float(eps)
+        self.name = name
+
+    def __call__(self, query: GroundQuery) -> np.ndarray:
+        T = query.T_world_cam
+        n = T[2, :3].astype(np.float32)
+        h = np.float32(T[2, 3])
+        p = query.points
+        residual = n[0] * p.ray_x + n[1] * p.ray_y + n[2] + h / p.depth_m
+        return np.abs(residual) < self.eps

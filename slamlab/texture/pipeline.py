@@ -1,0 +1,514 @@
+"""Texture mapping, start to finish: RGB-D frames + a trajectory -> a coloured floor grid.
+
+Per RGB-D frame (streamed: memory is bounded by what the reader holds, one RGB file, plus
+the fixed-size accumulator; no frame is kept):
+1. depth (m, un-mirrored by the reader) -> 3D points in the IR optical frame (`backproject`);
+2. IR frame -> world: camera -> head (neck yaw, head pitch at the frame's time, already in
+   `frame.camera_to_body`) -> body (roll, pitch) -> world, the body's world pose being
+   Txyz(x, y, body_height_m) Rz(theta) Ry(pitch) Rx(roll) with (x, y, theta) the trajectory
+   interpolated at the frame's time;
+3. the `ground/` detector picks the floor points;
+4. floor points -> RGB frame (R, T) -> RGB pixel -> colour (`align`);
+5. colour added to the texture cell under each point (`texture_map`).
+
+Public entry points: `run_texture`, `save_texture_outputs`, `texture_metrics` (re-exported
+from `slamlab.eval.texture`), `texture_enabled`, `TextureResult`.
+
+Bad input never crashes a run half-way: missing calibration or no RGB-D raise a clear
+`DataError` before any work; a bad frame (no valid depth, no colour, colour too far in time,
+outside the trajectory's time span, wrong shapes) is skipped and counted in
+`TextureResult.skipped`; a reader error part-way stops the stream and keeps what was built
+(`TextureResult.messages`).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from slamlab.errors import ConfigError, DataError, SlamlabError
+from slamlab.eval.texture import DetectionCounts, texture_metrics
+from slamlab.frames import GridImage, KinectCalibration, RGBDFrame, Sequence
+from slamlab.geometry import rot_x, rot_y, rot_z, trans
+from slamlab.texture.align import sample_colors, unmirror_calibration
+from slamlab.texture.backproject import Backprojector, scaled_intrinsics
+from slamlab.texture.ground import GroundDetector, GroundQuery
+from slamlab.texture.texture_map import TextureAccumulator
+
+__all__ = [
+    "TextureResult",
+    "run_texture",
+    "save_texture_outputs",
+    "texture_metrics",
+    "texture_enabled",
+    "interpolate_poses",
+    "body_to_world",
+    "build_detector",
+]
+
+log = logging.getLogger("slamlab")
+
+GROUND_CONF_DIR = Path(__file__).resolve().parents[1] / "conf" / "ground"
+
+# Why a frame was not used (keys of TextureResult.skipped).
+SKIP_REASONS = (
+    "bad_depth",  # depth is not a 2-D array
+    "no_valid_depth",  # no pixel within [min_depth_m, max_depth_m]
+    "outside_trajectory",  # frame time further than max_pose_gap_s from the trajectory's span
+    "no_rgb",  # the reader found no colour image for this depth frame
+    "rgb_time_mismatch",  # colour further than max_rgb_dt_s from the depth time
+    "bad_rgb",  # colour image is not (H, W, 3) uint8
+    "bad_frame",  # anything else the frame's own data made impossible (message logged)
+)
+
+
+@dataclass(slots=True)
+class TextureResult:
+    """What `run_texture` builds (in memory; `save_texture_outputs` writes it).
+
+    - `color` (H, W, 3) uint8: the floor colour per cell of the occupancy grid (0 where unobserved);
+    - `count` (H, W) int64: floor points averaged into each cell (0 = unobserved);
+    - `resolution_m`, `origin_xy`: the occupancy grid's, so cell (r, c) is the same place in both;
+    - `floor_points` (K, 3) float64 m and `floor_colors` (K, 3) uint8: one point per observed
+      cell (the mean of its points): a voxel-downsampled coloured floor cloud;
+    - `detector`: the ground detector's name;
+    - `frames_total`: frames read from the stream, `frames_used`: frames that went through the
+      detector and colouring, `skipped`: {reason: count} (see SKIP_REASONS), `frames_thinned`:
+      frames left out on purpose by `frame_every` / `max_frames`;
+    - `frame_time_s` (F,): wall time of each used frame (s), from depth to accumulation;
+      `detect_time_s` (F,): the detector's part of it;
+    - `points_added`: floor points averaged into cells; `points_outside_grid`, `points_rejected`;
+    - `detection`: {detector name: DetectionCounts} on frames with ground labels (may be empty);
+    - `messages`: human-readable notes (e.g. a reader error that stopped the stream).
+    """
+
+    color: np.ndarray
+    count: np.ndarray
+    resolution_m: float
+    origin_xy: tuple[float, float]
+    floor_points: np.ndarray
+    floor_colors: np.ndarray
+    detector: str
+    frames_total: int = 0
+    frames_used: int = 0
+    frames_thinned: int = 0
+    skipped: dict[str, int] = field(default_factory=dict)
+    frame_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    detect_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    points_added: int = 0
+    points_outside_grid: int = 0
+    points_rejected: int = 0
+    detection: dict[str, DetectionCounts] = field(default_factory=dict)
+    messages: list[str] = field(default_factory=list)
+
+    @property
+    def covered(self) -> np.ndarray:
+        """(H, W) bool: cells with at least one floor point."""
+        return self.count > 0
+
+    @property
+    def covered_area_m2(self) -> float:
+        """Observed floor area (m^2)."""
+        return float(np.count_nonzero(self.count)) * self.resolution_m**2
+
+    @property
+    def grid(self) -> GridImage:
+        """The colour grid as a GridImage (row 0 = lowest y)."""
+        return GridImage(self.color, self.resolution_m, self.origin_xy)
+
+    def summary(self) -> dict:
+        """JSON-friendly counters and timings (no arrays)."""
+        ft = self.frame_time_s
+        dt = self.detect_time_s
+        return {
+            "detector": self.detector,
+            "frames_total": self.frames_total,
+            "frames_used": self.frames_used,
+            "frames_thinned": self.frames_thinned,
+            "frames_skipped": int(sum(self.skipped.values())),
+            "skipped": dict(self.skipped),
+            "points_added": self.points_added,
+            "points_outside_grid": self.points_outside_grid,
+            "points_rejected": self.points_rejected,
+            "covered_cells": int(np.count_nonzero(self.count)),
+            "covered_area_m2": self.covered_area_m2,
+            "frame_ms_median": float(np.median(ft) * 1e3) if ft.size else None,
+            "frame_ms_max": float(np.max(ft) * 1e3) if ft.size else None,
+            "detect_ms_median": float(np.median(dt) * 1e3) if dt.size else None,
+            "messages": list(self.messages),
+        }
+
+
+# ---- poses --------------------------------------------------------------------------------
+def interpolate_poses(times: np.ndarray, poses: np.ndarray, t_query: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """Trajectory (x m, y m, theta rad) at `t_query` (s), linear in x, y and UNWRAPPED theta.
+
+    `times` need not be sorted: THOR and simulated logs are monotonic, but CARMEN clocks can
+    step back, so samples are sorted by time (stable) first; duplicate times keep the first.
+    Queries outside [min(times), max(times)] are clamped to the end pose; the second return
+    value is how far (s) each query lies outside the span (0 inside), for the caller to reject.
+    Returns (poses (M, 3), gap_s (M,)) or ((3,), scalar) for a scalar query."""
+    times = np.asarray(times, dtype=np.float64).reshape(-1)
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    if times.size == 0 or times.size != poses.shape[0]:
+        raise ValueError(f"times ({times.size}) and poses ({poses.shape[0]}) must be equal, non-empty")
+    order = np.argsort(times, kind="stable")
+    t = times[order]
+    p = poses[order]
+    first = np.concatenate([[True], np.diff(t) > 0])
+    t, p = t[first], p[first]
+    theta = np.unwrap(p[:, 2])
+    q = np.asarray(t_query, dtype=np.float64)
+    scalar = q.ndim == 0
+    q = q.reshape(-1)
+    out = np.stack([np.interp(q, t, p[:, 0]), np.interp(q, t, p[:, 1]), np.interp(q, t, theta)], axis=-1)
+    out[:, 2] = (out[:, 2] + np.pi) % (2.0 * np.pi) - np.pi
+    gap = np.maximum(t[0] - q, 0.0) + np.maximum(q - t[-1], 0.0)
+    if scalar:
+        return out[0], gap[0]
+    return out, gap
+
+
+def body_to_world(pose: np.ndarray, body_height_m: float, roll: float = 0.0, pitch: float = 0.0) -> np.ndarray:
+    """4x4 world pose of the body: Txyz(x, y, body_height_m) Rz(theta) Ry(pitch) Rx(roll)."""
+    x, y, th = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
+    return trans(x, y, body_height_m) @ rot_z(th) @ rot_y(pitch) @ rot_x(roll)
+
+
+# ---- config -------------------------------------------------------------------------------
+def build_detector(ground_cfg: DictConfig | dict) -> GroundDetector:
+    """The ground detector named by a `ground/` config (`_target_` + knobs)."""
+    from hydra.utils import instantiate
+
+    cfg = ground_cfg if isinstance(ground_cfg, DictConfig) else OmegaConf.create(ground_cfg)
+    if "_target_" not in cfg:
+        raise ConfigError("ground._target_", "missing: pick a detector, e.g. ground=threshold")
+    try:
+        det = instantiate(cfg)
+    except Exception as exc:  # bad knob names / values come back wrapped by Hydra
+        raise ConfigError("ground", f"cannot build detector {cfg.get('_target_')}: {exc}") from None
+    if not callable(det):
+        raise ConfigError("ground._target_", f"{cfg._target_} is not a detector (not callable)")
+    return det
+
+
+def _packaged_detector(name: str) -> GroundDetector:
+    path = GROUND_CONF_DIR / f"{name}.yaml"
+    if not path.is_file():
+        raise ConfigError("texture.evaluate_detectors", f"no ground config named {name!r} ({path})")
+    return build_detector(OmegaConf.load(path))
+
+
+def texture_enabled(sequence: Sequence, texture_cfg: DictConfig) -> bool:
+    """Texture runs only when the dataset has RGB-D and the config is not `texture=none`."""
+    return sequence.rgbd is not None and bool(texture_cfg.get("enabled", True))
+
+
+def _cfg(texture_cfg: DictConfig, key: str, default):
+    v = texture_cfg.get(key, default)
+    return default if v is None and default is not None else v
+
+
+# ---- the run ------------------------------------------------------------------------------
+def run_texture(
+    sequence: Sequence,
+    times: np.ndarray,
+    poses: np.ndarray,
+    grid: GridImage,
+    ground_cfg: DictConfig,
+    texture_cfg: DictConfig,
+    progress: Callable[[int, int], None] | None = None,
+) -> TextureResult:
+    """Colour the floor cells of `grid` from the sequence's RGB-D frames placed with `poses`.
+
+    - `times` (N,) scan times (s) and `poses` (N, 3) the trajectory at those times (x m, y m,
+      theta rad; the SLAM estimate or the odometry) - interpolated at each frame's depth time;
+    - `grid`: the occupancy map; the texture grid has its shape, resolution and origin;
+    - `ground_cfg`: a `ground/` config (detector); `texture_cfg`: a `texture/` config;
+    - `progress(done, total)`: optional, called after each frame (total = sequence.rgbd_count).
+
+    Raises DataError (before any work) if the sequence has no RGB-D, no Kinect calibration or
+    no body height, and ConfigError for impossible config values. Never raises for a bad frame.
+    """
+    if sequence.rgbd is None:
+        raise DataError(sequence.name, "has no RGB-D frames: texture mapping needs a sequence with Kinect data")
+    if sequence.calibration is None:
+        raise DataError(
+            sequence.name, "has RGB-D frames but no Kinect calibration (cameraParam/ IRcam, RGBcamera, exParams .pkl)"
+        )
+    if sequence.body_height_m is None:
+        raise DataError(sequence.name, "has no body height: cannot place the camera above the floor")
+    times = np.asarray(times, dtype=np.float64).reshape(-1)
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    if times.size == 0 or times.size != poses.shape[0]:
+        raise ConfigError("texture", f"times ({times.size}) and poses ({poses.shape[0]}) must have equal, non-zero length")
+
+    calib: KinectCalibration = sequence.calibration
+    if bool(_cfg(texture_cfg, "calibration_mirrored", False)):
+        calib = unmirror_calibration(calib)
+    stride = int(_cfg(texture_cfg, "stride", 1))
+    if stride < 1:
+        raise ConfigError("texture.stride", f"must be >= 1, got {stride}")
+    frame_every = int(_cfg(texture_cfg, "frame_every", 1))
+    if frame_every < 1:
+        raise ConfigError("texture.frame_every", f"must be >= 1, got {frame_every}")
+    max_frames = texture_cfg.get("max_frames", None)
+    max_rgb_dt = float(_cfg(texture_cfg, "max_rgb_dt_s", 0.1))
+    max_gap = float(_cfg(texture_cfg, "max_pose_gap_s", 0.5))
+    distort_rgb = bool(_cfg(texture_cfg, "distort_rgb", True))
+    average = str(_cfg(texture_cfg, "average", "mean"))
+    if average not in ("mean", "robust"):
+        raise ConfigError("texture.average", f"must be 'mean' or 'robust', got {average!r}")
+
+    backproject = Backprojector(
+        calib.ir,
+        stride=stride,
+        undistort=bool(_cfg(texture_cfg, "undistort_depth", True)),
+        min_depth_m=float(_cfg(texture_cfg, "min_depth_m", 0.4)),
+        max_depth_m=float(_cfg(texture_cfg, "max_depth_m", 4.5)),
+    )
+    detector = build_detector(ground_cfg)
+    det_name = str(getattr(detector, "name", type(detector).__name__))
+    acc = TextureAccumulator.like(
+        grid,
+        average=average,
+        robust_reject=float(_cfg(texture_cfg, "robust_reject", 60.0)),
+        robust_min_count=int(_cfg(texture_cfg, "robust_min_count", 5)),
+    )
+
+    # Detection quality on labelled frames: the chosen detector, plus others for comparison.
+    labels = sequence.ground_truth.ground_labels if sequence.ground_truth is not None else {}
+    compare: dict[str, GroundDetector] = {}
+    if labels:
+        for name in _cfg(texture_cfg, "evaluate_detectors", []) or []:
+            if str(name) != det_name:
+                compare[str(name)] = _packaged_detector(str(name))
+    detection: dict[str, DetectionCounts] = {}
+
+    skipped: dict[str, int] = {}
+    messages: list[str] = []
+    frame_times: list[float] = []
+    detect_times: list[float] = []
+    frames_total = frames_used = thinned = 0
+    total = int(sequence.rgbd_count or 0)
+
+    def skip(reason: str, frame: RGBDFrame | None = None, detail: str = "") -> None:
+        skipped[reason] = skipped.get(reason, 0) + 1
+        if detail and skipped[reason] <= 3:  # say why, but do not flood the log
+            log.warning("texture: frame %s skipped (%s): %s", getattr(frame, "index", "?"), reason, detail)
+
+    stream = iter(sequence.rgbd())
+    while True:
+        try:
+            frame = next(stream)
+        except StopIteration:
+            break
+        except SlamlabError as exc:
+            # A corrupt RGB/DEPTH file part-way: keep the texture built so far.
+            messages.append(f"RGB-D stream stopped after {frames_total} frames: {exc}")
+            log.error("texture: %s", messages[-1])
+            break
+        frames_total += 1
+        if progress is not None:
+            progress(frames_total, max(total, frames_total))
+        if (frames_total - 1) % frame_every != 0 or (max_frames is not None and frames_used >= int(max_frames)):
+            thinned += 1
+            continue
+        t0 = time.perf_counter()
+        try:
+            used, dt_detect, dt_eval = _process_frame(
+                frame, sequence, calib, backproject, detector, det_name, compare, labels, detection,
+                acc, times, poses, max_gap, max_rgb_dt, distort_rgb, skip,
+            )  # fmt: skip
+        except (ValueError, IndexError, DataError) as exc:
+            # The frame's own data is inconsistent (e.g. odd shapes): skip it, keep going.
+            skip("bad_frame", frame, f"{type(exc).__name__}: {exc}")
+            continue
+        if used:
+            frames_used += 1
+            # Evaluation-only work (other detectors on labelled frames) is not the mapper's cost.
+            frame_times.append(time.perf_counter() - t0 - dt_eval)
+            detect_times.append(dt_detect)
+
+    if frames_total == 0:
+        messages.append("the RGB-D stream was empty")
+    elif frames_used == 0:
+        messages.append(f"no usable RGB-D frame out of {frames_total}: skipped {skipped}")
+    if messages:
+        for m in messages[-1:]:
+            log.warning("texture: %s", m)
+    pts, cols = acc.cloud()
+    return TextureResult(
+        color=acc.color(),
+        count=acc.counts.copy(),
+        resolution_m=float(grid.resolution_m),
+        origin_xy=(float(grid.origin_xy[0]), float(grid.origin_xy[1])),
+        floor_points=pts,
+        floor_colors=cols,
+        detector=det_name,
+        frames_total=frames_total,
+        frames_used=frames_used,
+        frames_thinned=thinned,
+        skipped=skipped,
+        frame_time_s=np.asarray(frame_times),
+        detect_time_s=np.asarray(detect_times),
+        points_added=int(acc.count.sum()),
+        points_outside_grid=acc.points_outside,
+        points_rejected=acc.points_rejected,
+        detection=detection,
+        messages=messages,
+    )
+
+
+def _process_frame(
+    frame: RGBDFrame,
+    sequence: Sequence,
+    calib: KinectCalibration,
+    backproject: Backprojector,
+    detector: GroundDetector,
+    det_name: str,
+    compare: dict[str, GroundDetector],
+    labels: dict[int, np.ndarray],
+    detection: dict[str, DetectionCounts],
+    acc: TextureAccumulator,
+    times: np.ndarray,
+    poses: np.ndarray,
+    max_gap: float,
+    max_rgb_dt: float,
+    distort_rgb: bool,
+    skip: Callable[..., None],
+) -> tuple[bool, float, float]:
+    """One frame through the pipeline. Returns (used, detector s, evaluation-only s); skips call `skip`."""
+    depth = np.asarray(frame.depth_m)
+    if depth.ndim != 2 or depth.size == 0:
+        skip("bad_depth", frame, f"depth shape {depth.shape}")
+        return False, 0.0, 0.0
+    pts = backproject(depth)
+    if len(pts) == 0:
+        skip("no_valid_depth")
+        return False, 0.0, 0.0
+    pose, gap = interpolate_poses(times, poses, frame.t)
+    if gap > max_gap:
+        skip("outside_trajectory", frame, f"t={frame.t:.3f} is {gap:.2f} s outside the trajectory")
+        return False, 0.0, 0.0
+    T_wb = body_to_world(pose, float(sequence.body_height_m), frame.roll, frame.pitch)
+    T_wc = T_wb @ np.asarray(frame.camera_to_body, dtype=np.float64).reshape(4, 4)
+    query = GroundQuery(pts, T_wc, scaled_intrinsics(calib.ir, depth.shape[1], depth.shape[0]))
+
+    t0 = time.perf_counter()
+    floor = detector(query)
+    dt_detect = time.perf_counter() - t0
+
+    dt_eval = 0.0
+    truth = labels.get(frame.index) if labels else None
+    if truth is not None:
+        t1 = time.perf_counter()
+        truth = np.asarray(truth, dtype=bool)
+        if truth.shape == depth.shape:
+            truth_at = truth[pts.v, pts.u]
+            detection.setdefault(det_name, DetectionCounts()).add(floor, truth_at)
+            for name, det in compare.items():
+                detection.setdefault(name, DetectionCounts()).add(det(query), truth_at)
+        dt_eval = time.perf_counter() - t1
+
+    rgb = frame.rgb
+    if rgb is None:
+        skip("no_rgb")
+        return False, dt_detect, dt_eval
+    if not np.isfinite(frame.rgb_t) or abs(frame.rgb_t - frame.t) > max_rgb_dt:
+        skip("rgb_time_mismatch", frame, f"colour {frame.rgb_t - frame.t:+.3f} s from depth")
+        return False, dt_detect, dt_eval
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        skip("bad_rgb", frame, f"colour image {rgb.shape} {rgb.dtype}")
+        return False, dt_detect, dt_eval
+
+    idx = np.flatnonzero(floor)
+    if idx.size:
+        colors, keep = sample_colors(pts.cam[idx], rgb, calib, distort=distort_rgb)
+        idx = idx[keep]
+        acc.add(query.world_at(idx), colors)
+    return True, dt_detect, dt_eval
+
+
+# ---- outputs ------------------------------------------------------------------------------
+def _atomic_target(path: Path) -> Path:
+    # Same directory (os.replace is atomic only within a filesystem), same suffix (writers
+    # pick the format from it), a name no reader mistakes for a finished artifact.
+    return path.with_name(f".partial-{os.getpid()}-{path.name}")
+
+
+def _write_png(path: Path, rgba: np.ndarray) -> None:
+    import matplotlib.pyplot as plt
+
+    tmp = _atomic_target(path)
+    try:
+        plt.imsave(tmp, rgba, format="png")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def texture_image(result: TextureResult) -> np.ndarray:
+    """(H, W, 4) uint8 RGBA for people: top row = highest y, unobserved cells transparent."""
+    rgba = np.zeros(result.color.shape[:2] + (4,), dtype=np.uint8)
+    rgba[..., :3] = result.color
+    rgba[..., 3] = np.where(result.covered, 255, 0)
+    return np.flipud(rgba)
+
+
+def texture_over_map_image(result: TextureResult, occupancy_prob: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8: the occupancy map in grey (white free, black occupied, grey unknown)
+    with the texture over it where observed; top row = highest y."""
+    occ = np.asarray(occupancy_prob, dtype=np.float64)
+    if occ.shape != result.count.shape:
+        raise ValueError(f"occupancy {occ.shape} and texture {result.count.shape} grids differ")
+    grey = np.clip(np.rint((1.0 - occ) * 255.0), 0, 255).astype(np.uint8)
+    img = np.repeat(grey[..., None], 3, axis=2)
+    img[result.covered] = result.color[result.covered]
+    return np.flipud(img)
+
+
+def save_texture_outputs(
+    result: TextureResult, occupancy_prob: np.ndarray, out_dir: Path, prefix: str = "texture", voxel_m: float | None = None
+) -> dict[str, Path]:
+    """Write `{prefix}.png` (RGBA, unobserved transparent), `{prefix}_over_map.png` (texture
+    over the occupancy map) and the coloured floor cloud (`floor.ply` for the default prefix,
+    else `floor_{suffix}.ply`; Open3D, voxel-downsampled to `voxel_m`, default the grid
+    resolution). Every file goes to a temporary name in `out_dir` and is renamed when
+    complete. Returns {kind: path}."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: dict[str, Path] = {}
+    p = out_dir / f"{prefix}.png"
+    _write_png(p, texture_image(result))
+    written["texture"] = p
+    p = out_dir / f"{prefix}_over_map.png"
+    _write_png(p, texture_over_map_image(result, occupancy_prob))
+    written["over_map"] = p
+
+    import open3d as o3d
+
+    suffix = prefix[len("texture") :].lstrip("_") if prefix.startswith("texture") else prefix
+    p = out_dir / ("floor.ply" if not suffix else f"floor_{suffix}.ply")
+    pcd = o3d.geometry.PointCloud()
+    if result.floor_points.shape[0]:
+        pcd.points = o3d.utility.Vector3dVector(np.asarray(result.floor_points, dtype=np.float64))
+        pcd.colors = o3d.utility.Vector3dVector(np.asarray(result.floor_colors, dtype=np.float64) / 255.0)
+        pcd = pcd.voxel_down_sample(float(voxel_m or result.resolution_m))
+    tmp = _atomic_target(p)
+    try:
+        if not o3d.io.write_point_cloud(str(tmp), pcd, write_ascii=False):
+            raise OSError(f"Open3D could not write {tmp}")
+        os.replace(tmp, p)
+    finally:
+        tmp.unlink(missing_ok=True)
+    written["cloud"] = p
+    return written

@@ -1,0 +1,132 @@
+"""The texture map: a colour grid aligned cell-for-cell with the occupancy grid.
+
+Each floor point adds its colour to the cell it falls in; a cell's colour is the average of
+its points. Two averages are offered:
+- `mean`: the running mean of every point (cheap, but one mis-registered frame smears in);
+- `robust`: a gated running mean: once a cell has `robust_min_count` points, a point whose
+  colour differs from the cell's current mean by more than `robust_reject` (0-255, any
+  channel) is ignored. It rejects colours from a badly placed frame or a foot in view without
+  storing per-cell histories (memory stays 7 numbers per cell whatever the sequence length).
+Cells never observed stay blank (count 0).
+
+The per-cell mean of the points' world positions is kept too, so the floor point cloud is a
+voxel-downsampled cloud (one point per cell column) for free.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from slamlab.frames import GridImage
+
+
+@numba.njit(cache=True, nogil=True)
+def _accumulate(lin, colors, xyz, color_sum, xyz_sum, count, robust, reject, min_count):  # pragma: no cover - compiled
+    """Add points to cells in order. Returns how many were rejected by the robust gate."""
+    rejected = 0
+    for i in range(lin.shape[0]):
+        c = lin[i]
+        n = count[c]
+        if robust and n >= min_count:
+            bad = False
+            for k in range(3):
+                if abs(colors[i, k] - color_sum[c, k] / n) > reject:
+                    bad = True
+            if bad:
+                rejected += 1
+                continue
+        for k in range(3):
+            color_sum[c, k] += colors[i, k]
+            xyz_sum[c, k] += xyz[i, k]
+        count[c] = n + 1
+    return rejected
+
+
+class TextureAccumulator:
+    """Accumulates coloured floor points into a (H, W) grid with the occupancy grid's
+    `resolution_m` and `origin_xy` (cell (r, c) covers x in [ox + c res, +res), y in
+    [oy + r res, +res), row 0 = lowest y)."""
+
+    def __init__(
+        self,
+        shape: tuple[int, int],
+        resolution_m: float,
+        origin_xy: tuple[float, float],
+        average: str = "mean",
+        robust_reject: float = 60.0,
+        robust_min_count: int = 5,
+    ):
+        if average not in ("mean", "robust"):
+            raise ValueError(f"average must be 'mean' or 'robust', got {average!r}")
+        self.shape = (int(shape[0]), int(shape[1]))
+        self.resolution_m = float(resolution_m)
+        self.origin_xy = (float(origin_xy[0]), float(origin_xy[1]))
+        self.robust = average == "robust"
+        self.robust_reject = float(robust_reject)
+        self.robust_min_count = int(robust_min_count)
+        ncell = self.shape[0] * self.shape[1]
+        self.color_sum = np.zeros((ncell, 3), dtype=np.float64)
+        self.xyz_sum = np.zeros((ncell, 3), dtype=np.float64)
+        self.count = np.zeros(ncell, dtype=np.int64)
+        self.points_outside = 0
+        self.points_rejected = 0
+
+    @classmethod
+    def like(cls, grid: GridImage, **kwargs) -> TextureAccumulator:
+        """An accumulator aligned with `grid` (same shape, resolution and origin)."""
+        return cls(grid.data.shape[:2], grid.resolution_m, grid.origin_xy, **kwargs)
+
+    def cell_index(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Linear cell index of each (x, y) (m) and a mask of those inside the grid."""
+        res = self.resolution_m
+        c = np.floor((xy[:, 0] - self.origin_xy[0]) / res).astype(np.int64)
+        r = np.floor((xy[:, 1] - self.origin_xy[1]) / res).astype(np.int64)
+        inside = (c >= 0) & (c < self.shape[1]) & (r >= 0) & (r < self.shape[0])
+        return r * self.shape[1] + c, inside
+
+    def add(self, world: np.ndarray, colors: np.ndarray) -> int:
+        """Add (K, 3) world points (m) with (K, 3) uint8 colours; returns how many landed in the grid."""
+        if world.shape[0] == 0:
+            return 0
+        lin, inside = self.cell_index(world)
+        self.points_outside += int(world.shape[0] - np.count_nonzero(inside))
+        lin = lin[inside]
+        self.points_rejected += int(
+            _accumulate(
+                lin,
+                # No dtype conversion: the kernel is compiled for uint8 colours / float32 points.
+                np.ascontiguousarray(colors[inside]),
+                np.ascontiguousarray(world[inside]),
+                self.color_sum,
+                self.xyz_sum,
+                self.count,
+                self.robust,
+                self.robust_reject,
+                self.robust_min_count,
+            )
+        )
+        return int(lin.size)
+
+    # ---- results -------------------------------------------------------------------------
+    @property
+    def counts(self) -> np.ndarray:
+        """(H, W) int64 points per cell."""
+        return self.count.reshape(self.shape)
+
+    def color(self, blank: tuple[int, int, int] = (0, 0, 0)) -> np.ndarray:
+        """(H, W, 3) uint8 mean colour; unobserved cells get `blank`."""
+        n = self.count[:, None]
+        out = np.empty((self.count.size, 3), dtype=np.uint8)
+        seen = self.count > 0
+        out[seen] = np.clip(np.rint(self.color_sum[seen] / n[seen]), 0, 255).astype(np.uint8)
+        out[~seen] = np.asarray(blank, dtype=np.uint8)
+        return out.reshape(self.shape + (3,))
+
+    def cloud(self) -> tuple[np.ndarray, np.ndarray]:
+        """One point per observed cell: (K, 3) float64 mean position (m), (K, 3) uint8 mean colour."""
+        seen = np.flatnonzero(self.count > 0)
+        n = self.count[seen, None].astype(np.float64)
+        pts = self.xyz_sum[seen] / n
+        cols = np.clip(np.rint(self.color_sum[seen] / n), 0, 255).astype(np.uint8)
+        return pts, cols
