@@ -299,3 +299,14 @@ def test_rgbd_memory_is_bounded_by_a_frame_not_a_file(tmp_path: Path) -> None:
     assert n == same == 40
     # About: the frame being handed out + the one being read (+ its raw buffer); a file is 20.
     assert peak < 5 * img.nbytes, f"peak {peak} bytes while streaming"
+
+
+def test_writer_is_byte_reproducible(tmp_path: Path) -> None:
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    make_log(tmp_path / "a")
+    make_log(tmp_path / "b")
+    for f in ("train_lidar0.mat", "train_joint0.mat"):
+        data = (tmp_path / "a" / f).read_bytes()
+        assert data.startswith(b"MATLAB 5.0 MAT-file") and data == (tmp_path / "b" / f).read_bytes()
+    assert not list(tmp_path.glob("*/.*.tmp"))  # no temporary files left behind

@@ -49,6 +49,7 @@ KINECT_FIELDS = (
 
 DEFAULT_RES_RAD = 0.0044  # what the THOR files store (0.25 deg rounded to 4 decimals)
 JOINT_POS_ROWS = 35
+_HEADER_TEXT = b"MATLAB 5.0 MAT-file, Platform: posix, Created by: slamlab.datasets.thor_write"
 FT_ROWS = 6
 
 
@@ -100,8 +101,12 @@ def _atomic_savemat(path: str | Path, variables: Mapping[str, object]) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        with tmp.open("wb") as f:  # a file object: savemat must not append '.mat'
+        with tmp.open("w+b") as f:  # a file object: savemat must not append '.mat'
             scipy.io.savemat(f, dict(variables), format="5", oned_as="row")
+            # scipy stamps the wall-clock time into the header text: a fixed text makes the
+            # same arrays give byte-identical files (reproducible data fingerprints).
+            f.seek(0)
+            f.write(_HEADER_TEXT.ljust(116, b" ")[:116])
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
