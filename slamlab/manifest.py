@@ -13,10 +13,30 @@ from omegaconf import DictConfig, OmegaConf
 import slamlab
 
 
+FULL_HASH_LIMIT = 256 << 20  # bytes; larger files (multi-GB RGB logs) are sampled
+
+
+def _file_digest(path: Path) -> tuple[str, str]:
+    """(sha256 hex, how): the whole file, or for very large files its size plus the first
+    and last 4 MB, so that fingerprinting a several-GB RGB log takes milliseconds."""
+    h = hashlib.sha256()
+    size = path.stat().st_size
+    with path.open("rb") as f:
+        if size <= FULL_HASH_LIMIT:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+            return h.hexdigest(), "full"
+        h.update(str(size).encode())
+        h.update(f.read(4 << 20))
+        f.seek(size - (4 << 20))
+        h.update(f.read())
+        return h.hexdigest(), "size+head+tail"
+
+
 def fingerprint_files(paths: list[str]) -> dict:
     """sha256 over the given files (folders: every file inside, sorted by relative path).
 
-    Returns {"sha256": hex digest over all, "files": {name: {"bytes", "sha256"}}}.
+    Returns {"sha256": hex digest over all, "files": {name: {"bytes", "sha256", "hashed"}}}.
     """
     total = hashlib.sha256()
     files: dict[str, dict] = {}
@@ -24,13 +44,10 @@ def fingerprint_files(paths: list[str]) -> dict:
         p = Path(src)
         members = sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else [p]
         for q in members:
-            h = hashlib.sha256()
-            with q.open("rb") as f:
-                for chunk in iter(lambda: f.read(1 << 20), b""):
-                    h.update(chunk)
+            digest, how = _file_digest(q)
             name = str(q.relative_to(p.parent)) if p.is_dir() else q.name
-            files[name] = {"bytes": q.stat().st_size, "sha256": h.hexdigest()}
-            total.update(name.encode() + b"\0" + h.digest())
+            files[name] = {"bytes": q.stat().st_size, "sha256": digest, "hashed": how}
+            total.update(name.encode() + b"\0" + digest.encode())
     return {"sha256": total.hexdigest(), "files": files}
 
 
