@@ -80,10 +80,12 @@ def make_run_dir(
     groundtruth: bool = True,
     texture: bool = False,
     n_steps: int = 300,
+    hydra_files: bool = True,
 ) -> Path:
     """Write one run directory. `failure`: None (ok run), "metrics" (metrics.json with
     status failed + error, partial artifacts) or "log" (killed: no metrics.json, the error
-    only in slamlab.log). Values in `overrides` (`key=value`) are applied to the config."""
+    only in slamlab.log). Values in `overrides` (`key=value`) are applied to the config.
+    `hydra_files=False` leaves .hydra/ alone (when real Hydra already wrote it)."""
     overrides = list(overrides or [])
     cfg = copy.deepcopy(BASE_CONFIG)
     for o in overrides:
@@ -92,11 +94,12 @@ def make_run_dir(
     particles = int(cfg["particles"])
     seed = int(cfg["seed"])
     run_dir.mkdir(parents=True, exist_ok=True)
-    hyd = run_dir / ".hydra"
-    hyd.mkdir(exist_ok=True)
-    (hyd / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
-    (hyd / "overrides.yaml").write_text(yaml.safe_dump(overrides))
-    (hyd / "hydra.yaml").write_text(yaml.safe_dump({"hydra": {"overrides": {"task": overrides}}}))
+    if hydra_files:
+        hyd = run_dir / ".hydra"
+        hyd.mkdir(exist_ok=True)
+        (hyd / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+        (hyd / "overrides.yaml").write_text(yaml.safe_dump(overrides))
+        (hyd / "hydra.yaml").write_text(yaml.safe_dump({"hydra": {"overrides": {"task": overrides}}}))
 
     if failure == "log":
         (run_dir / "slamlab.log").write_text(
