@@ -89,19 +89,25 @@ def grid_search_hits(lo, thresh, ox, oy, inv_res, poses, pts, offsets, out_poses
 
 
 @numba.njit(cache=True)
-def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, out_poses, out_scores):
+def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores):
     """Coarse grid over `offsets` with `coarse_pts`, then hill climbing with `fine_pts`:
     try +-lin_step in x, y and +-ang_step in yaw, take the best improving move, repeat; when
-    none improves halve both steps, `levels` times. Writes best poses and their fine scores."""
+    none improves halve both steps, `levels` times. Every score is penalised by the motion
+    prior `kxy * |dxy|^2 + kyaw * dyaw^2` (offset from the predicted pose), so flat
+    directions (corridors) do not random-walk. Writes best poses and their fine scores."""
     for i in range(poses.shape[0]):
+        px = poses[i, 0]
+        py = poses[i, 1]
+        pt = poses[i, 2]
         bx = poses[i, 0]
         by = poses[i, 1]
         bt = poses[i, 2]
         if offsets.shape[0] > 1:
-            best = -1.0
+            best = -1e300
             bk = 0
             for k in range(offsets.shape[0]):
-                sc = score_field(field, ox, oy, inv_res, poses[i, 0] + offsets[k, 0], poses[i, 1] + offsets[k, 1], poses[i, 2] + offsets[k, 2], coarse_pts)
+                sc = score_field(field, ox, oy, inv_res, px + offsets[k, 0], py + offsets[k, 1], pt + offsets[k, 2], coarse_pts)
+                sc -= kxy * (offsets[k, 0] ** 2 + offsets[k, 1] ** 2) + kyaw * offsets[k, 2] ** 2
                 if sc > best:
                     best = sc
                     bk = k
@@ -109,6 +115,7 @@ def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, l
             by += offsets[bk, 1]
             bt += offsets[bk, 2]
         cur = score_field(field, ox, oy, inv_res, bx, by, bt, fine_pts)
+        cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
         ls = lin_step
         as_ = ang_step
         for _ in range(levels):
@@ -134,6 +141,7 @@ def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, l
                     else:
                         ct -= as_
                     sc = score_field(field, ox, oy, inv_res, cx, cy, ct, fine_pts)
+                    sc -= kxy * ((cx - px) ** 2 + (cy - py) ** 2) + kyaw * (ct - pt) ** 2
                     if sc > ms:
                         ms = sc
                         mx = cx
@@ -227,6 +235,8 @@ class LikelihoodFieldMatcher(Matcher):
       (evaluated with every `coarse_beam_step`-th point); half widths 0 skip it.
     - beam_step: points used by the hill climb and the score (every k-th).
     - refine_levels: step halvings of the hill climb, starting from half the coarse steps.
+    - prior_sigma_xy_m / prior_sigma_yaw_rad: motion prior; a pose offset d from the
+      prediction costs 0.5 (d / sigma)^2 score units (0 = no prior).
     """
 
     def __init__(
@@ -240,8 +250,14 @@ class LikelihoodFieldMatcher(Matcher):
         coarse_beam_step: int = 3,
         beam_step: int = 1,
         refine_levels: int = 4,
+        prior_sigma_xy_m: float = 0.0,
+        prior_sigma_yaw_rad: float = 0.0,
         move_to_best: bool = True,
     ) -> None:
+        sxy = require_nonnegative(GROUP, "prior_sigma_xy_m", prior_sigma_xy_m)
+        syaw = require_nonnegative(GROUP, "prior_sigma_yaw_rad", prior_sigma_yaw_rad)
+        self.kxy = 0.5 / sxy**2 if sxy > 0 else 0.0
+        self.kyaw = 0.5 / syaw**2 if syaw > 0 else 0.0
         self.field_sigma_m = require_positive(GROUP, "sigma_m", sigma_m)
         self.field_radius_m = require_positive(GROUP, "radius_m", radius_m)
         require_nonnegative(GROUP, "xy_half_width_m", xy_half_width_m)
@@ -262,6 +278,7 @@ class LikelihoodFieldMatcher(Matcher):
         scores = np.empty(len(poses))
         field_search(
             grid.field, grid.origin[0], grid.origin[1], 1.0 / grid.res, np.ascontiguousarray(poses), coarse, fine,
-            self.offsets, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels, best, scores,
+            self.offsets, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
+            self.kxy, self.kyaw, best, scores,
         )
         return self._finish(poses, best, scores)
