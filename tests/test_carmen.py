@@ -364,3 +364,22 @@ def test_no_warnings_on_a_clean_log(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_carmen(write(tmp_path / "small.clf", SMALL_LOG))
+
+
+def test_crlf_tabs_and_extra_spaces_read_like_the_clean_log(tmp_path):
+    clean = load_carmen(write(tmp_path / "clean.clf", SMALL_LOG))
+    messy = SMALL_LOG.replace("FLASER 5 ", "FLASER\t5  ").replace(" nohost ", "  nohost\t") + "   "
+    messy_seq = load_carmen(write(tmp_path / "messy.clf", messy.replace("\n", "\r\n")))
+    assert_same_sequence(clean, messy_seq)
+
+
+def test_relations_of_another_log_are_rejected_at_load(tmp_path):
+    write(tmp_path / "small.clf", SMALL_LOG)
+    write(tmp_path / "wrong.relations", "1.0 1.2 0.5 0.2 0 0 0 0.1\n1.2 7.5 0.5 0.2 0 0 0 0.1")
+    with pytest.raises(DataError, match=r"wrong\.relations: line 2, field 't2': 7\.500000 is not the time of any scan"):
+        load_carmen(tmp_path / "small.clf", relations=tmp_path / "wrong.relations")
+
+
+def test_bad_max_range_argument(tmp_path):
+    with pytest.raises(ValueError, match="max_range_m must be a positive"):
+        load_carmen(write(tmp_path / "small.clf", SMALL_LOG), max_range_m=-1.0)

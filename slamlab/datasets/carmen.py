@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from slamlab.errors import DataError
+from slamlab.eval.relations import find_times
 from slamlab.frames import Relations, ScanFrame, Sequence
 from slamlab.geometry import FloatArray, rot_z, se2_between, trans, wrap_angle
 
@@ -149,10 +150,15 @@ def load_relations(path: str | Path) -> Relations:
     benchmark) are read but dropped. Blank lines and `#` comments are skipped. Any other
     line that is not 8 finite numbers raises DataError naming the line and field.
     """
-    path = Path(path)
+    return _read_relations(Path(path))[0]
+
+
+def _read_relations(path: Path) -> tuple[Relations, list[int]]:
+    """The relations and the line number of each."""
     text = _read_text(path)
     rows: list[list[float]] = []
-    for lineno, line in enumerate(text.splitlines(), 1):
+    linenos: list[int] = []
+    for lineno, line in enumerate(text.split("\n"), 1):
         parts = line.split()
         if not parts or parts[0].startswith("#"):
             continue
@@ -172,10 +178,11 @@ def load_relations(path: str | Path) -> Relations:
                 raise DataError(path, f"expected a finite number, got {tok!r}", record=record, field=name)
             row.append(value)
         rows.append(row)
+        linenos.append(lineno)
     if not rows:
         raise DataError(path, "no relations in file")
     arr = np.asarray(rows, dtype=np.float64)
-    return Relations(t1=arr[:, 0], t2=arr[:, 1], rel=arr[:, [2, 3, 7]].copy(), path=str(path))
+    return Relations(t1=arr[:, 0], t2=arr[:, 1], rel=arr[:, [2, 3, 7]].copy(), path=str(path)), linenos
 
 
 # ----------------------------------------------------------------------------- log parsing
@@ -444,6 +451,8 @@ def load_carmen(
     no-return range. NaN/inf readings become invalid beams and raise one warning with
     their count. Raises DataError (file, line, field) for unreadable input.
     """
+    if max_range_m is not None and not (np.isfinite(max_range_m) and max_range_m > 0):
+        raise ValueError(f"max_range_m must be a positive number of metres, got {max_range_m}")
     path = Path(path)
     text = _read_text(path)
     # split("\n"), not splitlines(): that also breaks at \x0b, \x0c, \x1c-\x1e and \x85.
@@ -471,8 +480,6 @@ def load_carmen(
     for pname in params:
         if _MAX_RANGE_PARAM.match(pname):
             param_max = _param_float(path, params, pname)
-    if max_range_m is not None and not (np.isfinite(max_range_m) and max_range_m > 0):
-        raise ValueError(f"max_range_m must be a positive number of metres, got {max_range_m}")
 
     # Parse every group first: the saturation value is a property of the whole log.
     parsed = []  # (group, ranges f64 (L, n), laser (L, 3), robot (L, 3), t (L,), record max or None, angles)
@@ -557,7 +564,19 @@ def load_carmen(
     else:
         guess = path.parent / f"{_log_stem(path)}.relations"
         rel_path = guess if guess.is_file() else None
-    rel = load_relations(rel_path) if rel_path is not None else None
+    rel = None
+    if rel_path is not None:
+        rel, rel_lines = _read_relations(rel_path)
+        # A relations file of another log would only fail at evaluation, after a long run:
+        # check now that every relation time is a scan time.
+        times = np.array([s.t for s in scans])  # type: ignore[union-attr]
+        for name_t, query in (("t1", rel.t1), ("t2", rel.t2)):
+            _, found = find_times(times, query)
+            if not found.all():
+                k = int(np.argmin(found))
+                raise DataError(rel_path, f"{query[k]:.6f} is not the time of any scan in {path.name} "
+                                f"({int(np.count_nonzero(~found))} relations affected; wrong relations file?)",
+                                record=f"line {rel_lines[k]}", field=name_t)  # fmt: skip
 
     sources = [str(path)] + ([str(rel_path)] if rel_path is not None else [])
     seq = Sequence(

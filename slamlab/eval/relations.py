@@ -26,19 +26,20 @@ from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, 
 DEFAULT_TIME_TOL_S = 1e-6
 
 
-def match_times(times: np.ndarray, query: np.ndarray, tol_s: float = DEFAULT_TIME_TOL_S) -> np.ndarray:
-    """Index into `times` (s, any order) of the entry equal to each `query` time (s).
+def find_times(
+    times: np.ndarray, query: np.ndarray, tol_s: float = DEFAULT_TIME_TOL_S
+) -> tuple[np.ndarray, np.ndarray]:
+    """(index, found): for each `query` time (s), the index into `times` (s, any order) of
+    the equal entry, and whether there is one. Unfound entries have index -1.
 
     Two times match when they differ by at most `tol_s` seconds (widened to a few float64
     ulps for large epoch times). Where several scans share a time the first in file order
-    wins. Raises ValueError naming the unmatched times when any query has no match.
+    wins.
     """
     times = np.asarray(times, dtype=np.float64).reshape(-1)
     query = np.asarray(query, dtype=np.float64).reshape(-1)
     if times.size == 0:
-        if query.size:
-            raise ValueError(f"no poses to match {query.size} relation times against")
-        return np.zeros(0, dtype=np.intp)
+        return np.full(query.size, -1, dtype=np.intp), np.zeros(query.size, dtype=bool)
     order = np.argsort(times, kind="stable")  # stable: equal times keep file order
     sorted_t = times[order]
     pos = np.searchsorted(sorted_t, query, side="left")
@@ -51,6 +52,15 @@ def match_times(times: np.ndarray, query: np.ndarray, tol_s: float = DEFAULT_TIM
     best = np.searchsorted(sorted_t, sorted_t[best], side="left")
     tol = np.maximum(tol_s, 8.0 * np.spacing(np.abs(query)))
     ok = np.abs(sorted_t[best] - query) <= tol
+    return np.where(ok, order[best], -1), ok
+
+
+def match_times(times: np.ndarray, query: np.ndarray, tol_s: float = DEFAULT_TIME_TOL_S) -> np.ndarray:
+    """Index into `times` (s, any order) of the entry equal to each `query` time (s), as in
+    `find_times`. Raises ValueError naming the unmatched times when any query has no match.
+    """
+    query = np.asarray(query, dtype=np.float64).reshape(-1)
+    idx, ok = find_times(times, query, tol_s)
     if not np.all(ok):
         missing = query[~ok]
         shown = ", ".join(f"{t:.6f}" for t in missing[:5])
@@ -59,7 +69,7 @@ def match_times(times: np.ndarray, query: np.ndarray, tol_s: float = DEFAULT_TIM
             f"{missing.size} relation time(s) have no pose within {tol_s:g} s: {shown}{more}; "
             "every scan of the log needs a pose"
         )
-    return order[best]
+    return idx
 
 
 def relation_residuals(
