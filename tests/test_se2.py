@@ -1,0 +1,28 @@
+"""SE(2) algebra with known answers."""
+
+import numpy as np
+
+from slamlab.geometry import se2_between, se2_compose, se2_inverse, wrap_angle
+
+
+def test_compose_known_answer():
+    a = np.array([1.0, 2.0, np.pi / 2])
+    b = np.array([1.0, 0.0, 0.0])
+    np.testing.assert_allclose(se2_compose(a, b), [1.0, 3.0, np.pi / 2], atol=1e-12)
+
+
+def test_inverse_and_between_round_trip():
+    rng = np.random.default_rng(1)
+    a = rng.normal(size=(50, 3))
+    b = rng.normal(size=(50, 3))
+    np.testing.assert_allclose(se2_compose(a, se2_inverse(a)), 0.0, atol=1e-12)
+    # b == a (+) (a (-) b): the odometry increment re-applied gives the end pose
+    back = se2_compose(a, se2_between(a, b))
+    np.testing.assert_allclose(back[:, :2], b[:, :2], atol=1e-12)
+    np.testing.assert_allclose(wrap_angle(back[:, 2] - b[:, 2]), 0.0, atol=1e-12)
+
+
+def test_wrap_angle_range():
+    w = wrap_angle(np.array([np.pi, -np.pi, 3 * np.pi, 7.0]))
+    assert np.all(w >= -np.pi) and np.all(w < np.pi)
+    np.testing.assert_allclose(w[2], -np.pi)

@@ -1,0 +1,234 @@
+"""Unit tests of the SLAM components on small cases with known answers."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from slamlab.frames import ScanFrame
+from slamlab.geometry import rot_y, trans
+from slamlab.slam.grid import MapSettings, OccupancyGrid
+from slamlab.slam.matcher import GridMatcher, LikelihoodFieldMatcher, offset_grid
+from slamlab.slam.motion import CourseMotion, Odometry4Motion
+from slamlab.slam.raycast import bresenham, raycast_update
+from slamlab.slam.resample import MultinomialResampler, ResidualResampler, StratifiedResampler, SystematicResampler
+from slamlab.slam.scan import ScanPoints, scan_to_points
+from slamlab.slam.steps import fill_between_steps, select_steps
+from slamlab.slam.weighting import LinearWeighting, LogSumExpWeighting, WeightUnderflowWarning, effective_sample_size, logsumexp
+
+# ---------------------------------------------------------------- ray casting
+
+
+def test_bresenham_reference_cells():
+    assert bresenham(0, 0, 0, 3) == [(0, 0), (0, 1), (0, 2), (0, 3)]
+    assert bresenham(0, 0, 2, 2) == [(0, 0), (1, 1), (2, 2)]
+    assert bresenham(3, 1, 0, 1) == [(3, 1), (2, 1), (1, 1), (0, 1)]
+
+
+def _cast(r0, c0, ends, shape=(12, 12)):
+    lo = np.zeros(shape, np.float32)
+    flip = np.array([10**9, -1, 10**9, -1], np.int64)
+    rows = np.array([e[0] for e in ends], np.int64)
+    cols = np.array([e[1] for e in ends], np.int64)
+    raycast_update(lo, r0, c0, rows, cols, np.float32(1.0), np.float32(-0.5), np.float32(-2.0), np.float32(2.0), np.float32(0.0), flip)
+    return lo, flip
+
+
+def test_raycast_matches_reference_and_clamps():
+    lo, flip = _cast(1, 1, [(7, 4)])
+    cells = bresenham(1, 1, 7, 4)
+    for r, c in cells[:-1]:
+        assert lo[r, c] == pytest.approx(-0.5)
+    assert lo[7, 4] == pytest.approx(1.0)
+    assert np.count_nonzero(lo) == len(cells)
+    assert list(flip) == [7, 7, 4, 4]  # only the hit cell became occupied
+    # ten beams through the same cells clamp at the bounds
+    lo, _ = _cast(0, 0, [(0, 5)] * 10)
+    assert lo[0, 5] == pytest.approx(2.0) and lo[0, 2] == pytest.approx(-2.0)
+
+
+def test_raycast_hits_not_erased_by_neighbour_beams():
+    # the second beam passes through the first beam's end cell: hits are applied last
+    lo, _ = _cast(0, 0, [(0, 3), (0, 6)])
+    assert lo[0, 3] == pytest.approx(0.5)  # -0.5 (crossed) + 1.0 (hit)
+
+
+def test_grid_grows_and_keeps_content():
+    g = OccupancyGrid(MapSettings(resolution_m=0.1, initial_size_m=2.0, growth_margin_m=1.0))
+    g.insert(np.zeros(2), np.array([[0.55, 0.0]]))
+    assert g.occupied().sum() == 1
+    g.insert(np.zeros(2), np.array([[5.0, -4.0]]))  # far outside the 2 m grid
+    assert g.grow_count >= 1
+    r, c = g.cells(np.array([[0.55, 0.0], [5.0, -4.0]]))
+    assert g.occupied()[r[0], c[0]] and g.occupied()[r[1], c[1]]
+
+
+# ---------------------------------------------------------------- scan to points
+
+
+def _frame(ranges, angles, l2b=None, pitch=0.0):
+    r = np.asarray(ranges, np.float32)
+    return ScanFrame(index=0, t=0.0, odom=np.zeros(3), ranges=r, angles=np.asarray(angles, np.float32),
+                     valid=np.ones(len(r), bool), lidar_to_body=np.eye(4) if l2b is None else l2b, pitch=pitch)
+
+
+def test_scan_to_points_ranges_and_mount():
+    f = _frame([1.0, 0.05, 50.0, 2.0], [0.0, 0.0, 0.0, np.pi / 2], l2b=trans(x=0.1))
+    p = scan_to_points(f, None, min_range_m=0.1, max_range_m=30.0, ground_threshold_m=0.1)
+    np.testing.assert_allclose(p.xy, [[1.1, 0.0], [0.1, 2.0]], atol=1e-6)
+    np.testing.assert_allclose(p.origin, [0.1, 0.0])
+
+
+def test_scan_to_points_drops_ground_hits():
+    # lidar 1.41 m above the floor, body pitched down 30 deg: a 1 m beam stays high, a 5 m
+    # beam reaches the floor (z = 1.41 - 5 sin 30 < 0) and is dropped
+    f = _frame([1.0, 5.0], [0.0, 0.0], l2b=trans(z=0.48), pitch=np.radians(30))
+    p = scan_to_points(f, 0.93, 0.1, 30.0, ground_threshold_m=0.1)
+    assert len(p.xy) == 1
+    np.testing.assert_allclose(p.xy[0], (rot_y(np.radians(30)) @ [1.0, 0, 0, 1])[:2] + 0.48 * np.sin(np.radians(30)) * np.array([1, 0]), atol=1e-9)
+
+
+# ---------------------------------------------------------------- weighting, N_eff
+
+
+def test_neff_known_values():
+    assert effective_sample_size(np.full(10, 0.1)) == pytest.approx(10.0)
+    assert effective_sample_size(np.array([1.0, 0, 0, 0])) == pytest.approx(1.0)
+    assert effective_sample_size(np.array([0.5, 0.5, 0, 0])) == pytest.approx(2.0)
+
+
+def test_logsumexp_extreme_values():
+    assert logsumexp(np.array([1000.0, 1000.0])) == pytest.approx(1000.0 + np.log(2))
+    assert logsumexp(np.array([-1000.0, -1000.0])) == pytest.approx(-1000.0 + np.log(2))
+    assert logsumexp(np.array([0.0, -np.inf])) == 0.0
+    w = LogSumExpWeighting(temperature=1.0)
+    lw = w.update(np.log(np.full(3, 1 / 3)), np.array([5000.0, 4000.0, -1e6]))
+    assert np.all(np.isfinite(lw[:2])) and lw[0] == pytest.approx(0.0) and np.exp(lw).sum() == pytest.approx(1.0)
+
+
+def test_logsumexp_temperature():
+    lw = LogSumExpWeighting(temperature=2.0).update(np.log([0.5, 0.5]), np.array([2.0, 0.0]))
+    np.testing.assert_allclose(np.exp(lw), [np.e / (np.e + 1), 1 / (np.e + 1)])
+
+
+def test_linear_weighting_known_and_underflow_fallback():
+    lin = LinearWeighting()
+    lw = lin.update(np.log([0.5, 0.5]), np.array([3.0, 1.0]))
+    np.testing.assert_allclose(np.exp(lw), [0.75, 0.25])
+    # tiny weights times tiny correlations underflow float64 to exactly 0 for everyone
+    with pytest.warns(WeightUnderflowWarning, match="underflowed.*uniform.*logsumexp"):
+        lw = lin.update(np.log([1e-200, 1e-200]), np.array([1e-200, 1e-200]))
+    np.testing.assert_allclose(np.exp(lw), [0.5, 0.5])
+    assert lin.underflows == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # warned once; later occurrences only counted + logged
+        lin.update(np.log([0.5, 0.5]), np.zeros(2))
+    assert lin.underflows == 2
+
+
+# ---------------------------------------------------------------- resampling
+
+
+@pytest.mark.parametrize("cls", [MultinomialResampler, SystematicResampler, StratifiedResampler, ResidualResampler])
+def test_resamplers_are_unbiased(cls):
+    w = np.array([0.5, 0.25, 0.125, 0.125, 0.0])
+    rng = np.random.Generator(np.random.PCG64(3))
+    r = cls(threshold=0.5)
+    counts = np.zeros(5)
+    reps = 2000
+    for _ in range(reps):
+        idx = r.indices(w, rng)
+        assert idx.shape == (5,) and idx.min() >= 0 and idx.max() <= 4
+        counts += np.bincount(idx, minlength=5)
+    np.testing.assert_allclose(counts / (reps * 5), w, atol=0.02)
+    assert counts[4] == 0  # a zero-weight particle is never drawn
+
+
+@pytest.mark.parametrize("cls", [SystematicResampler, StratifiedResampler, ResidualResampler])
+def test_low_variance_resamplers_copy_exact_multiples(cls):
+    # N w_i are integers: these schemes reproduce them exactly, every time
+    w = np.array([0.5, 0.25, 0.25, 0.0])
+    idx = cls().indices(w, np.random.Generator(np.random.PCG64(0)))
+    np.testing.assert_array_equal(np.bincount(idx, minlength=4), [2, 1, 1, 0])
+
+
+def test_resample_trigger():
+    r = SystematicResampler(threshold=0.5)
+    assert not r.should_resample(np.full(4, 0.25))
+    assert r.should_resample(np.array([0.97, 0.01, 0.01, 0.01]))
+
+
+# ---------------------------------------------------------------- motion
+
+
+def test_motion_models_no_noise_when_standing_still():
+    poses = np.array([[1.0, 2.0, 0.3]] * 5)
+    rng = np.random.Generator(np.random.PCG64(0))
+    for m in (CourseMotion(), Odometry4Motion()):
+        np.testing.assert_allclose(m.sample(poses, np.zeros(3), rng), poses, atol=1e-12)
+
+
+def test_motion_models_follow_the_increment():
+    rng = np.random.Generator(np.random.PCG64(0))
+    poses = np.zeros((4000, 3))
+    poses[:, 2] = np.pi / 2  # facing +y: a forward step of 1 m lands at y = 1
+    for m in (CourseMotion(sigma_xy_m=0.01, sigma_theta_rad=0.01), Odometry4Motion(0.01, 0.001, 0.01, 0.001)):
+        out = m.sample(poses, np.array([1.0, 0.0, 0.0]), rng)
+        np.testing.assert_allclose(out.mean(axis=0), [0.0, 1.0, np.pi / 2], atol=0.01)
+        assert out[:, 1].std() > 0  # noisy
+
+
+# ---------------------------------------------------------------- correlation on a known map
+
+
+def _box_map():
+    """A 4 x 4 m room (walls at x, y = +-2 m) mapped from the centre."""
+    g = OccupancyGrid(MapSettings(resolution_m=0.05, initial_size_m=6.0), field_sigma_m=0.05, field_radius_m=0.2)
+    a = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+    d = 2.0 / np.maximum(np.abs(np.cos(a)), np.abs(np.sin(a)))  # distance to the square's wall
+    pts = np.stack([d * np.cos(a), d * np.sin(a)], 1) * 0.999
+    for _ in range(3):
+        g.insert(np.zeros(2), pts)
+    return g, ScanPoints(xy=pts[::3], origin=np.zeros(2))
+
+
+def test_grid_matcher_finds_known_offset():
+    g, scan = _box_map()
+    m = GridMatcher(xy_half_width_m=0.2, xy_step_m=0.05)
+    start = np.array([[0.10, -0.15, 0.0], [0.0, 0.0, 0.0]])
+    best, score = m.match(g, start, scan)
+    np.testing.assert_allclose(best, 0.0, atol=1e-9)
+    assert score[0] == score[1] == len(scan.xy)  # every point on a wall
+
+
+def test_likelihood_matcher_recovers_pose_subcell():
+    g, scan = _box_map()
+    m = LikelihoodFieldMatcher(xy_half_width_m=0.1, xy_step_m=0.05, yaw_half_width_rad=0.1, yaw_step_rad=0.025, refine_levels=5)
+    start = np.array([[0.07, -0.06, 0.05]])
+    best, _ = m.match(g, start, scan)
+    np.testing.assert_allclose(best[0], 0.0, atol=0.015)
+
+
+def test_offset_grid_sizes_and_order():
+    o = offset_grid(0.2, 0.05, 0.0, 0.01)
+    assert o.shape == (81, 3)
+    np.testing.assert_array_equal(o[0], 0.0)  # ties favour not moving
+
+
+# ---------------------------------------------------------------- step selection and filling
+
+
+def test_select_steps_every_and_distance():
+    odom = np.zeros((10, 3))
+    odom[3:, 0] = np.arange(7) * 0.1  # static for scans 0..3, then 0.1 m per scan
+    assert list(select_steps(odom, every=1)) == list(range(3, 10))
+    assert list(select_steps(odom, every=3)) == [3, 6, 9]
+    assert list(select_steps(odom, min_distance_m=0.25)) == [3, 6, 9]
+    assert list(select_steps(odom, every=1, skip_static_start=False))[0] == 0
+
+
+def test_fill_between_steps_composes_odometry():
+    odom = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], float)
+    est = np.array([[0, 0, np.pi / 2], [0, 2, np.pi / 2]], float)  # estimate turned by 90 deg
+    full = fill_between_steps(np.array([0, 2]), est, odom)
+    np.testing.assert_allclose(full[:, :2], [[0, 0], [0, 1], [0, 2], [0, 3]], atol=1e-12)
