@@ -47,7 +47,7 @@ import numpy as np
 from slamlab.errors import DataError
 from slamlab.eval.relations import find_times
 from slamlab.frames import Relations, ScanFrame, Sequence
-from slamlab.geometry import FloatArray, rot_z, se2_between, trans, wrap_angle
+from slamlab.geometry import rot_z, se2_between, trans, wrap_angle
 
 _FLASER_TAIL = (
     "x", "y", "theta", "odom_x", "odom_y", "odom_theta",
