@@ -91,17 +91,6 @@ def _cache_key(params: SimParams, calib: KinectCalibration) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def _fix_mat_header(path: Path) -> None:
-    """scipy's savemat stamps the wall-clock time into the 116-byte MAT header text; replace
-    it with a fixed description so the same seed gives byte-identical files."""
-    text = b"MATLAB 5.0 MAT-file, Platform: posix, Created by: slamlab.datasets.sim v" + SIM_VERSION.encode()
-    with path.open("r+b") as f:
-        head = f.read(116)
-        if head.startswith(b"MATLAB 5.0 MAT-file"):
-            f.seek(0)
-            f.write(text.ljust(116, b" "))
-
-
 def _people(params: SimParams, world: World, t_rel: np.ndarray) -> np.ndarray:
     """(len(t), P, 4) cylinders [x, y, radius 0.25 m, height 1.75 m]: people pacing up and
     down the corridor legs at 0.6-1.0 m/s, 0.9 m to the side of the robot's route."""
@@ -214,9 +203,6 @@ def generate_sequence(folder: str | Path, params: SimParams = SimParams(), calib
 
             tw.write_rgb_mats(folder, SEQUENCE, rgb_frames())
         simcalib.write_camera_params(folder / "cameraParam", calib)
-
-    for p in folder.glob("*.mat"):
-        _fix_mat_header(p)
 
     # ---- ground truth ----
     simtruth.write_tum(truth_dir / simtruth.TRAJECTORY_FILE, T0_UNIX_S + t_lidar, np.column_stack([s_lidar["pose"][:, :2], wrap_angle(s_lidar["pose"][:, 2])]))
