@@ -128,6 +128,8 @@ class Sequence:
     robot whose lidar never sees the floor (ground filtering is then off).
     `rgbd` returns a fresh lazy iterator over RGB-D frames (memory bounded by one file), or
     is None when the sequence has no RGB-D. `sources` lists the files read, for fingerprints.
+    `max_range_m` / `min_range_m` are the sensor's limits (a reading at the maximum means no
+    return); the engine may use a shorter range of its own for mapping.
     """
 
     name: str
