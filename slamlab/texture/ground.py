@@ -104,7 +104,9 @@ class PlaneGround(GroundDetector):
     when its normal is within `max_tilt_deg` of vertical and its height at the camera's (x, y)
     is within `max_height_m` of z = 0. RANSAC runs on at most `fit_max_points` randomly chosen
     points (the fit needs few; cost scales with points x iterations), then inliers are taken
-    over all points with `distance_threshold_m`. Seeded, so runs are reproducible."""
+    over all points with `distance_threshold_m`, and the plane is refitted by least squares to
+    them (`refine_iterations` rounds), which also makes the result stable across runs although
+    Open3D's RANSAC itself is not bit-reproducible."""
 
     def __init__(
         self,
@@ -117,6 +119,7 @@ class PlaneGround(GroundDetector):
         max_planes: int = 3,
         min_inliers: int = 200,
         seed: int = 0,
+        refine_iterations: int = 2,
         name: str = "plane",
     ):
         self.distance_threshold_m = float(distance_threshold_m)
@@ -128,6 +131,7 @@ class PlaneGround(GroundDetector):
         self.max_planes = int(max_planes)
         self.min_inliers = int(min_inliers)
         self.seed = int(seed)
+        self.refine_iterations = int(refine_iterations)
         self.name = name
         self._rng = np.random.default_rng(seed)
         # Last frame's accepted plane (a, b, c, d) with a x + b y + c z + d = 0, or None.
@@ -163,9 +167,7 @@ class PlaneGround(GroundDetector):
             if len(inl) < self.ransac_n or norm == 0:
                 break
             plane = plane / norm
-            # Residual over ALL remaining points, not just the fitted subsample.
-            dist = np.abs(world[remaining] @ plane[:3].astype(np.float32) + np.float32(plane[3]))
-            inliers = remaining[dist < self.distance_threshold_m]
+            plane, inliers = self._refine(world, remaining, plane)
             a, b, c, d = plane
             if abs(c) >= self.min_cos_tilt:
                 height = -(a * cam_xy[0] + b * cam_xy[1] + d) / c
@@ -178,6 +180,29 @@ class PlaneGround(GroundDetector):
             keep[inliers] = False
             remaining = remaining[keep[remaining]]
         return mask
+
+    def _refine(self, world: np.ndarray, remaining: np.ndarray, plane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Least-squares refit on the inliers over ALL remaining points (not the subsample).
+
+        Why: Open3D's RANSAC is not bit-reproducible even when seeded (0.20 varies between
+        calls, single-threaded too); refitting to the full inlier set converges to the same
+        plane from nearby hypotheses, so the floor mask is stable run to run, and more accurate."""
+        pts = world[remaining].astype(np.float64)
+        inl = np.zeros(0, dtype=np.intp)
+        for _ in range(self.refine_iterations + 1):
+            inl = np.flatnonzero(np.abs(pts @ plane[:3] + plane[3]) < self.distance_threshold_m)
+            if inl.size < self.ransac_n:
+                break
+            if _ == self.refine_iterations:
+                break
+            sel = pts[inl]
+            c = sel.mean(axis=0)
+            w, v = np.linalg.eigh(np.cov((sel - c).T))
+            n = v[:, 0]  # smallest eigenvalue: the plane normal
+            if n @ plane[:3] < 0:
+                n = -n  # keep the hypothesis's orientation
+            plane = np.array([n[0], n[1], n[2], -n @ c])
+        return plane, remaining[inl]
 
 
 def image_plane_coefficients(T_world_cam: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:

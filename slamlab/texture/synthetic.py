@@ -90,3 +90,57 @@ def render_frame(
     rgb[inside] = texture.data[row[inside], col[inside], :3]
     rgb[~floor_c & np.isfinite(lam_c)] = WALL_RGB
     return depth.astype(np.float32), rgb, label
+
+
+def scaled_calibration(calib: KinectCalibration, scale: float) -> KinectCalibration:
+    """The same Kinect with both images resized by `scale` (fast small frames for tests)."""
+    from slamlab.texture.backproject import scaled_intrinsics
+
+    def s(intr: CameraIntrinsics) -> CameraIntrinsics:
+        return scaled_intrinsics(intr, max(1, round(intr.width * scale)), max(1, round(intr.height * scale)))
+
+    return KinectCalibration(ir=s(calib.ir), rgb=s(calib.rgb), R=calib.R, T_mm=calib.T_mm)
+
+
+def synthetic_sequence(
+    calib: KinectCalibration,
+    poses: np.ndarray,
+    texture: GridImage | None = None,
+    head_pitch_rad: float = 0.6,
+    neck_yaw_rad: float = 0.0,
+    wall_x_m: float | None = 3.0,
+    noise_m: float = 0.0,
+    name: str = "synthetic-floor",
+):
+    """A `Sequence` with one RGB-D frame per pose (times 0, 1, 2, ... s), ground labels and the
+    true floor texture; `poses` (N, 3) are the true body poses. Frames are rendered up front
+    (use a `scaled_calibration` for speed)."""
+    from slamlab.frames import GroundTruth, RGBDFrame, Sequence
+    from slamlab.robot import COM_HEIGHT_M, camera_to_body
+    from slamlab.texture.pipeline import body_to_world
+
+    texture = texture if texture is not None else checker_texture()
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    frames: list[RGBDFrame] = []
+    labels: dict[int, np.ndarray] = {}
+    cam_to_body = camera_to_body(neck_yaw_rad, head_pitch_rad)
+    for i, pose in enumerate(poses):
+        T = body_to_world(pose, COM_HEIGHT_M) @ cam_to_body
+        depth, rgb, label = render_frame(calib, T, texture, wall_x_m=wall_x_m, noise_m=noise_m, seed=i)
+        frames.append(
+            RGBDFrame(
+                index=i, t=float(i), depth_m=depth, rgb=rgb, rgb_t=float(i),
+                head_angles=np.array([neck_yaw_rad, head_pitch_rad]), camera_to_body=cam_to_body, odom=pose.copy(),
+            )  # fmt: skip
+        )
+        labels[i] = label
+    return Sequence(
+        name=name,
+        scans=[],
+        body_height_m=COM_HEIGHT_M,
+        sources=[],
+        rgbd=lambda: iter(frames),
+        rgbd_count=len(frames),
+        calibration=calib,
+        ground_truth=GroundTruth(poses=poses, floor_texture=texture, ground_labels=labels),
+    )
