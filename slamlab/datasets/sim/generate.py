@@ -339,7 +339,7 @@ def validate_params(p: SimParams) -> None:
 
     checks = [
         ("duration_s", p.duration_s > 0.5, "must be > 0.5 s"),
-        ("stand_s", 0 <= p.stand_s < p.duration_s, "must be in [0, duration_s)"),
+        ("stand_s", p.stand_s >= 0, "must be >= 0 s (longer than duration_s: the robot never moves)"),
         ("walk_speed_mps", 0 < p.walk_speed_mps <= 2.0, "must be in (0, 2] m/s"),
         ("turn_rate_dps", 0 < p.turn_rate_dps <= 180, "must be in (0, 180] deg/s"),
         ("n_clutter", p.n_clutter >= 0, "must be >= 0"),
