@@ -505,7 +505,14 @@ def save_texture_outputs(
         pcd = pcd.voxel_down_sample(float(voxel_m or result.resolution_m))
     tmp = _atomic_target(p)
     try:
-        if not o3d.io.write_point_cloud(str(tmp), pcd, write_ascii=False):
+        if len(pcd.points) == 0:
+            # Open3D refuses to write an empty cloud; an empty but valid PLY keeps the run
+            # directory's file set fixed (nothing seen is a result, not an error).
+            tmp.write_text(
+                "ply\nformat ascii 1.0\nelement vertex 0\nproperty double x\nproperty double y\n"
+                "property double z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
+            )
+        elif not o3d.io.write_point_cloud(str(tmp), pcd, write_ascii=False):
             raise OSError(f"Open3D could not write {tmp}")
         os.replace(tmp, p)
     finally:
