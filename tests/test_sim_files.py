@@ -222,3 +222,41 @@ def test_hydra_config_instantiates_load_sim(tmp_path: Path) -> None:
         cfg = compose("config", overrides=["dataset=sim", "dataset.seed=3", "dataset.duration_s=2", "dataset.rgbd=false", f"dataset.cache_dir={tmp_path}"])
     s = instantiate(cfg.dataset)
     assert s.name == "sim-seed3" and len(s) == 80
+
+
+def test_joint_rate_truth_matches_the_joint_file(folder: Path) -> None:
+    joint = scipy.io.loadmat(str(folder / "train_joint0.mat"))
+    with np.load(folder / "truth" / "body_states_joint.npz") as z:
+        np.testing.assert_array_equal(z["t"], joint["ts"][0])
+        np.testing.assert_array_equal(z["neck_yaw"], joint["head_angles"][0])
+        np.testing.assert_array_equal(z["head_pitch"], joint["head_angles"][1])
+        assert np.abs(z["roll"] - joint["rpy"][0]).max() < np.deg2rad(1.5)  # IMU noise 0.2 deg
+        assert np.ptp(z["head_pitch"]) > 0.3 and np.ptp(z["neck_yaw"]) > 0.2  # the head moves
+
+
+def test_people_walk_through_the_scans(tmp_path: Path) -> None:
+    quiet = load_sim(seed=4, duration_s=3.0, rgbd=False, cache_dir=str(tmp_path))
+    busy = load_sim(seed=4, duration_s=3.0, rgbd=False, n_people=3, cache_dir=str(tmp_path))
+    a = np.stack([s.ranges for s in quiet.scans])
+    b = np.stack([s.ranges for s in busy.scans])
+    closer = (b > 0) & (a > 0) & (b < a - 0.3)  # something now stands in front of the walls
+    assert closer.any(axis=1).mean() > 0.5
+    moved = [np.flatnonzero(closer[i]) for i in (0, len(b) - 1)]
+    assert not np.array_equal(moved[0], moved[1])  # and it moves
+
+
+def test_generation_race_keeps_the_first_finished_folder(tmp_path: Path) -> None:
+    target = tmp_path / "seq"
+    target.mkdir()
+    (target / "winner").write_text("other job")
+    generate_atomic(target, SimParams(duration_s=1.0, rgbd=False))
+    assert (target / "winner").read_text() == "other job"
+    assert [p.name for p in tmp_path.iterdir()] == ["seq"]
+
+
+def test_calibration_dir_gives_the_same_numbers(tmp_path: Path, shared_data: Path) -> None:
+    kw = dict(seed=0, duration_s=1.0, kinect_scale=0.1, cache_dir=str(tmp_path))
+    a = load_sim(**kw, calibration_dir=str(shared_data / "thor" / "cameraParam"))
+    b = load_sim(**kw)
+    np.testing.assert_allclose(a.calibration.ir.fc, np.array([364.4573624856433 * 51 / 512, 364.5428106269892 * 42 / 424]))  # 512x424 -> 51x42
+    assert a.sources[0] == b.sources[0]  # same numbers -> same cached sequence

@@ -38,7 +38,7 @@ from slamlab.geometry import wrap_angle
 
 # Bump whenever the generator's output changes for the same parameters: it is part of the
 # cache key, so stale cached sequences are never reused.
-SIM_VERSION = "1"
+SIM_VERSION = "2"
 T0_UNIX_S = 1426800000.0  # March 2015, like the course logs
 LIDAR_HZ = 40.0
 JOINT_HZ = 100.0
@@ -214,6 +214,11 @@ def generate_sequence(folder: str | Path, params: SimParams = SimParams(), calib
         truth_dir / simtruth.STATES_FILE,
         {"t": T0_UNIX_S + t_lidar, "pose": s_lidar["pose"], "roll": s_lidar["roll"], "pitch": s_lidar["pitch"],
          "neck_yaw": s_lidar["neck_yaw"], "head_pitch": s_lidar["head_pitch"]},
+    )  # fmt: skip
+    simtruth.write_npz(
+        truth_dir / simtruth.JOINT_STATES_FILE,
+        {"t": T0_UNIX_S + t_joint, "pose": s_joint["pose"], "roll": s_joint["roll"], "pitch": s_joint["pitch"],
+         "neck_yaw": s_joint["neck_yaw"], "head_pitch": s_joint["head_pitch"]},
     )  # fmt: skip
     summary = {
         "sim_version": SIM_VERSION,

@@ -9,7 +9,8 @@ them back into a `GroundTruth`.
 - `floor_texture.png` + `floor_texture.yaml`: the floor's colours, same image convention.
 - `ground_labels.npz`: for a sample of depth frames, key `frame_<k>` (k = 0-based RGB-D
   frame index) -> bool (H, W), un-mirrored, True where the depth pixel sees the floor.
-- `body_states.npz`: t, pose (x, y, theta), roll, pitch, neck_yaw, head_pitch at scan times.
+- `body_states.npz`: t (Unix s), pose (x m, y m, theta rad unwrapped), roll, pitch, neck_yaw,
+  head_pitch (rad) at scan times; `body_states_joint.npz`: the same at the joint samples.
 
 Every writer here is deterministic (no timestamps in PNG or zip headers), so a simulated
 sequence is byte-identical for the same seed.
@@ -34,6 +35,7 @@ OCCUPANCY_FILE = "occupancy.png"
 TEXTURE_FILE = "floor_texture.png"
 LABELS_FILE = "ground_labels.npz"
 STATES_FILE = "body_states.npz"
+JOINT_STATES_FILE = "body_states_joint.npz"
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 
 
