@@ -260,3 +260,28 @@ def test_calibration_dir_gives_the_same_numbers(tmp_path: Path, shared_data: Pat
     b = load_sim(**kw)
     np.testing.assert_allclose(a.calibration.ir.fc, np.array([364.4573624856433 * 51 / 512, 364.5428106269892 * 42 / 424]))  # 512x424 -> 51x42
     assert a.sources[0] == b.sources[0]  # same numbers -> same cached sequence
+
+
+def test_stale_temp_folders_are_cleaned(tmp_path: Path) -> None:
+    import os
+
+    stale = tmp_path / ".tmp-seq-123-abcd"
+    fresh = tmp_path / ".tmp-seq-456-ef01"
+    stale.mkdir()
+    fresh.mkdir()
+    os.utime(stale, (0, 0))
+    generate_atomic(tmp_path / "seq", SimParams(duration_s=1.0, rgbd=False))
+    assert not stale.exists() and fresh.exists()  # a running job's folder is left alone
+
+
+def test_cli_writes_a_sequence(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from slamlab.cli.sim import main
+
+    out = tmp_path / "cli"
+    assert main([str(out), "--seed", "2", "--duration-s", "1.5", "--rgbd", "false"]) == 0
+    assert "60 scans" in capsys.readouterr().out
+    assert (out / "train_lidar0.mat").is_file() and not (out / "DEPTH_0.mat").exists()
+    assert main([str(out), "--duration-s", "1"]) == 2  # exists, no --force
+    assert "exists" in capsys.readouterr().err
+    assert main([str(out), "--kinect-scale", "7", "--force"]) == 2
+    assert "dataset.kinect_scale" in capsys.readouterr().err

@@ -241,6 +241,7 @@ def generate_atomic(target: str | Path, params: SimParams, calibration_dir: str 
     job won the race) it is kept and ours discarded, unless `replace`."""
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale_temps(target)
     tmp = target.parent / f".tmp-{target.name}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     try:
         generate_sequence(tmp, params, calibration_dir)
@@ -257,6 +258,20 @@ def generate_atomic(target: str | Path, params: SimParams, calibration_dir: str 
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     return target
+
+
+def _remove_stale_temps(target: Path, older_than_s: float = 3600.0) -> None:
+    """Delete temporary folders of killed generations of `target` (older than an hour, so a
+    job that is still writing is never disturbed)."""
+    import time
+
+    now = time.time()
+    for p in target.parent.glob(f".tmp-{target.name}-*"):
+        try:
+            if now - p.stat().st_mtime > older_than_s:
+                shutil.rmtree(p, ignore_errors=True)
+        except OSError:
+            pass
 
 
 def sim_folder(params: SimParams, calibration_dir: str | Path | None = None, cache_dir: str | Path | None = None) -> Path:
