@@ -16,7 +16,7 @@ _spec = importlib.util.spec_from_file_location(
 shots = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(shots)
 
-pytestmark = pytest.mark.skipif(shots.find_browser() is None, reason="Chromium not installed")
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(shots.find_browser() is None, reason="Chromium not installed")]
 
 
 def test_reports_render_in_chromium(tmp_path: Path) -> None:

@@ -51,20 +51,34 @@ def fig_to_data_uri(fig: Figure, dpi: int = DPI) -> str:
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def png_file_to_data_uri(path: Path, max_px: int = 1200) -> str:
-    """Embed an existing PNG (e.g. texture.png), shrunk so its longest side is <= max_px."""
-    from PIL import Image  # pillow ships with matplotlib
+def png_file_to_data_uri(path: Path, max_px: int = 900, min_px: int = 420, crop: bool = True,
+                         margin_px: int = 12) -> str:
+    """Embed an existing PNG (e.g. texture.png): cropped to its content (texture rasters span
+    the whole map grid and are mostly empty background) and shrunk so the longest side is
+    <= max_px. Background = the colour of the top-left pixel (transparent or unknown-grey)."""
+    from PIL import Image, ImageChops  # pillow ships with matplotlib
 
-    with Image.open(path) as im:
-        if max(im.size) <= max_px and path.stat().st_size < 3_000_000:
-            data = path.read_bytes()
-        else:
-            im = im.convert("RGBA") if im.mode not in ("RGB", "RGBA", "L") else im
-            im.thumbnail((max_px, max_px))
-            buf = io.BytesIO()
-            im.save(buf, format="PNG", optimize=False)
-            data = buf.getvalue()
-    return "data:image/png;base64," + base64.b64encode(data).decode("ascii")
+    with Image.open(path) as src:
+        im = src.convert("RGBA")
+    if crop:
+        bg = Image.new("RGBA", im.size, im.getpixel((0, 0)))
+        # Tolerance: anti-aliased edges and near-grey pixels must not defeat the crop.
+        diff = ImageChops.difference(im, bg).convert("L").point(lambda v: 255 if v > 12 else 0)
+        bbox = diff.getbbox()
+        if bbox is not None:
+            x0, y0, x1, y1 = bbox
+            im = im.crop((max(0, x0 - margin_px), max(0, y0 - margin_px),
+                          min(im.width, x1 + margin_px), min(im.height, y1 + margin_px)))
+    if max(im.size) > max_px:
+        im.thumbnail((max_px, max_px))
+    elif max(im.size) < min_px:
+        # A small textured patch would show as a thumbnail: enlarge by an integer factor
+        # with nearest-neighbour so cells stay crisp and nothing is invented.
+        k = max(1, min_px // max(im.size))
+        im = im.resize((im.width * k, im.height * k), Image.NEAREST)
+    buf = io.BytesIO()
+    im.save(buf, format="PNG")
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
 def prepare_map(m: LogOddsMap, max_px: int, trajectories: Sequence[Trajectory] = (), margin_m: float = 1.0) -> MapView:
@@ -114,8 +128,8 @@ def _draw_map(ax, view: MapView | None) -> None:
 def map_with_trajectories(
     m: LogOddsMap | None,
     trajectories: dict[str, Trajectory | None],
-    max_px: int = 700,
-    figsize: tuple[float, float] = (8.0, 7.0),
+    max_px: int = 800,
+    figsize: tuple[float, float] = (9.5, 8.0),
     title: str | None = None,
 ) -> str:
     """The map with the SLAM, odometry and ground-truth paths (keys of KIND_STYLE; None
@@ -141,10 +155,19 @@ def map_with_trajectories(
     return fig_to_data_uri(fig)
 
 
+def step_times(steps) -> np.ndarray:
+    """Step times (s) relative to the first step: log times are often Unix epochs (1.4e9 s),
+    which make an unreadable axis. Falls back to the step number when there is no `t`."""
+    if "t" not in steps:
+        return np.arange(len(steps), dtype=float)
+    t = steps["t"].to_numpy(dtype=float)
+    return t - t[0] if t.size else t
+
+
 def neff_plot(steps, particles: int | None, threshold: float | None) -> str:
     """N_eff per step over time, resampling events as ticks, and the resampling threshold."""
     fig, ax = plt.subplots(figsize=(9.0, 3.2))
-    t = steps["t"].to_numpy(dtype=float) if "t" in steps else steps.index.to_numpy(dtype=float)
+    t = step_times(steps)
     ax.plot(t, steps["neff"].to_numpy(dtype=float), lw=0.9, color="#1f77b4", label="N_eff")
     if "resampled" in steps:
         mask = steps["resampled"].astype(bool).to_numpy()
@@ -156,7 +179,7 @@ def neff_plot(steps, particles: int | None, threshold: float | None) -> str:
     if particles:
         ax.axhline(particles, color="grey", ls=":", lw=0.8, label=f"N = {particles}")
         ax.set_ylim(0, particles * 1.05)
-    ax.set_xlabel("time (s)")
+    ax.set_xlabel("time since first step (s)")
     ax.set_ylabel("N_eff")
     ax.legend(loc="lower right", fontsize=8, ncol=4, framealpha=0.85)
     ax.grid(alpha=0.3)
@@ -166,7 +189,7 @@ def neff_plot(steps, particles: int | None, threshold: float | None) -> str:
 def weight_and_time_plot(steps) -> str:
     """Best particle weight and filter step time over time, stacked with a shared time axis."""
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(9.0, 4.6), sharex=True)
-    t = steps["t"].to_numpy(dtype=float) if "t" in steps else steps.index.to_numpy(dtype=float)
+    t = step_times(steps)
     if "best_weight" in steps:
         a1.plot(t, steps["best_weight"].to_numpy(dtype=float), lw=0.9, color="#9467bd")
     a1.set_ylabel("best weight")
@@ -178,7 +201,7 @@ def weight_and_time_plot(steps) -> str:
             a2.axhline(float(np.median(st)), color="black", ls=":", lw=0.8, label=f"median {np.median(st):.1f} ms")
             a2.legend(loc="upper right", fontsize=8)
     a2.set_ylabel("step time (ms)")
-    a2.set_xlabel("time (s)")
+    a2.set_xlabel("time since first step (s)")
     a2.grid(alpha=0.3)
     return fig_to_data_uri(fig)
 
@@ -236,7 +259,7 @@ def neff_overlay(curves: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: s
     cmap = plt.get_cmap("tab10" if len(curves) <= 10 else "tab20")
     for i, (label, t, y) in enumerate(curves):
         ax.plot(t, y, lw=0.8, color=cmap(i % cmap.N), label=label)
-    ax.set_xlabel("time (s)")
+    ax.set_xlabel("time since first step (s)")
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3)
     ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8)

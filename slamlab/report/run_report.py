@@ -36,6 +36,15 @@ def neff_threshold(config: dict[str, Any], particles: int | None) -> tuple[float
     return None, "threshold not found in the resampler config"
 
 
+def data_fingerprint(manifest: dict[str, Any]) -> str | None:
+    """The data hash from a manifest (`data.sha256`; older layouts: `data_fingerprint`)."""
+    data = manifest.get("data")
+    if isinstance(data, dict) and data.get("sha256"):
+        return str(data["sha256"])
+    v = manifest.get("data_fingerprint") or manifest.get("fingerprint")
+    return str(v) if v else None
+
+
 def _size_text(n: int) -> str:
     for unit in ("B", "kB", "MB", "GB"):
         if n < 1024 or unit == "GB":
@@ -118,9 +127,10 @@ def render_run_report(run: RunDir) -> str:
 
     textures = []
     captions = {
-        "texture.png": "Floor texture from RGB-D along the SLAM trajectory",
-        "texture_over_map.png": "Texture over the occupancy map",
+        "texture.png": "Floor texture from RGB-D along the SLAM trajectory (cropped to the textured area)",
+        "texture_over_map.png": "SLAM texture over the occupancy map",
         "texture_odometry.png": "Texture along the odometry trajectory (for comparison)",
+        "texture_odometry_over_map.png": "Odometry texture over the occupancy map",
     }
     for name in TEXTURE_FILES:
         p = run.file(name)
@@ -151,8 +161,9 @@ def render_run_report(run: RunDir) -> str:
         ("particles", run.particles),
         ("seed", run.seed),
         ("overrides", " ".join(run.overrides) or "(none: all defaults)"),
-        ("package version", man.get("package_version") or man.get("version")),
-        ("data fingerprint", man.get("data_fingerprint") or man.get("fingerprint")),
+        ("package version", man.get("slamlab_version") or man.get("package_version") or man.get("version")),
+        ("git commit", man.get("git_commit")),
+        ("data fingerprint", data_fingerprint(man)),
         ("command line", " ".join(man["command"]) if isinstance(man.get("command"), list) else man.get("command")),
         ("platform", man.get("platform") if not isinstance(man.get("platform"), dict) else ", ".join(f"{k}={v}" for k, v in man["platform"].items())),
     ):

@@ -32,7 +32,8 @@ TRAJECTORY_FILE = "trajectory.tum"
 CAUSAL_FILE = "trajectory_causal.tum"
 ODOMETRY_FILE = "odometry.tum"
 GROUNDTRUTH_FILE = "groundtruth.tum"
-TEXTURE_FILES = ("texture.png", "texture_over_map.png", "texture_odometry.png")
+# Pairs (SLAM, odometry) so the page shows them side by side.
+TEXTURE_FILES = ("texture.png", "texture_odometry.png", "texture_over_map.png", "texture_odometry_over_map.png")
 LOG_FILE = "slamlab.log"
 ERROR_FILE = "error.txt"
 REPORT_FILE = "report.html"

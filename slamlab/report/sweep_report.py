@@ -35,6 +35,7 @@ from slamlab.report.rundir import (
     flatten,
     load_run,
 )
+from slamlab.report.run_report import data_fingerprint
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -367,7 +368,7 @@ def build_sweep_report(
     grid_img = _safe("map grid", lambda: figures.map_grid(grid_items)) if grid_items else None
 
     overlay_img, overlay_note = None, ""
-    datasets = {(runs[i].dataset, runs[i].manifest.get("data_fingerprint")) for i in ok_idx}
+    datasets = {(runs[i].dataset, data_fingerprint(runs[i].manifest)) for i in ok_idx}
     primary = _primary_metric(df)
     if ok_idx:
         bg = ok_idx[0]
@@ -398,7 +399,7 @@ def build_sweep_report(
         steps = _safe(f"steps of {labels[i]}", runs[i].load_steps)
         if steps is None or "neff" not in steps or not len(steps):
             continue
-        t = steps["t"].to_numpy(float) if "t" in steps else np.arange(len(steps), dtype=float)
+        t = figures.step_times(steps)
         y = steps["neff"].to_numpy(float)
         if normalise and runs[i].particles:
             y = y / runs[i].particles
@@ -413,7 +414,8 @@ def build_sweep_report(
     neff_note = ("N_eff divided by each run's particle count N, since N differs between runs."
                  if normalise else "N_eff per filter step of every run.")
     if smooth_windows and max(smooth_windows) > 1:
-        neff_note += (f" Smoothed by a centred rolling mean over {min(smooth_windows)}–{max(smooth_windows)} steps"
+        lo, hi = min(smooth_windows), max(smooth_windows)
+        neff_note += (f" Smoothed by a centred rolling mean over {lo if lo == hi else f'{lo}–{hi}'} steps"
                       " (each run's report shows the raw curve with its resampling events).")
 
     plots = _safe("parameter plots", lambda: param_plots(df, swept, metric_keys)) or []
