@@ -161,6 +161,9 @@ def read_map(run_dir: Path) -> GridImage:
 def write_steps(run_dir: Path, steps: pd.DataFrame) -> None:
     """steps.csv (people, spreadsheets) and steps.parquet (typed, fast)."""
     run_dir = Path(run_dir)
-    write_text(run_dir / "steps.csv", steps.to_csv(index=False, float_format="%.9g"))
+    table = steps.copy()
+    if "t" in table:  # epoch times need microseconds, not 9 significant digits
+        table["t"] = table["t"].map(lambda v: f"{v:.6f}")
+    write_text(run_dir / "steps.csv", table.to_csv(index=False, float_format="%.9g"))
     with atomic_path(run_dir / "steps.parquet") as tmp:
         steps.to_parquet(tmp, index=False)

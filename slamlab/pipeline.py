@@ -22,7 +22,7 @@ from omegaconf import DictConfig
 
 from slamlab import artifacts
 from slamlab.errors import ConfigError, DataError, SlamlabError
-from slamlab.frames import Sequence
+from slamlab.frames import Relations, Sequence
 from slamlab.manifest import build_manifest
 from slamlab.progress import make_progress
 from slamlab.slam.result import SlamResult
@@ -89,13 +89,13 @@ def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> dict:
         "status": "ok",
         "dataset": seq.name,
         "mode": str(cfg.mode),
-        "scans": len(seq),
+        "scans": len(result.times),
         "processed_steps": int(len(steps)),
         "particles": int(result.particles),
         "seed": int(cfg.seed),
         "duration_s": span,
         "runtime_s": result.runtime_s,
-        "scans_per_s": len(seq) / runtime,
+        "scans_per_s": len(result.times) / runtime,
         "realtime_factor": span / runtime if span > 0 else float("nan"),
         "resample_count": int(result.resample_count),
         "neff_mean": float(np.nanmean(neff)),
@@ -108,12 +108,14 @@ def accuracy_metrics(seq: Sequence, result: SlamResult) -> dict:
     """Accuracy against what the dataset knows: ground truth (sim) or relations (CARMEN)."""
     out: dict = {}
     gt = seq.ground_truth
+    n = len(result.times)  # fewer than len(seq) when steps.max_scans is set
     if gt is not None:
         from slamlab.eval.trajectory import map_agreement, trajectory_errors
 
-        traj = trajectory_errors(result.trajectory, gt.poses)
-        causal = trajectory_errors(result.causal, gt.poses)
-        odom = trajectory_errors(result.odometry, gt.poses)
+        truth = gt.poses[:n]
+        traj = trajectory_errors(result.trajectory, truth)
+        causal = trajectory_errors(result.causal, truth)
+        odom = trajectory_errors(result.odometry, truth)
         traj.update(
             causal_rmse_m=causal["rmse_m"],
             causal_mean_m=causal["mean_m"],
@@ -126,11 +128,25 @@ def accuracy_metrics(seq: Sequence, result: SlamResult) -> dict:
     if seq.relations is not None:
         from slamlab.eval.relations import relation_errors
 
-        rel = relation_errors(result.times, result.trajectory, seq.relations)
-        rel["causal"] = relation_errors(result.times, result.causal, seq.relations)
-        rel["odometry"] = relation_errors(result.times, result.odometry, seq.relations)
-        out["relations"] = rel
+        relations = relations_within(seq.relations, result.times)
+        if len(relations.t1):
+            rel = relation_errors(result.times, result.trajectory, relations)
+            rel["causal"] = relation_errors(result.times, result.causal, relations)
+            rel["odometry"] = relation_errors(result.times, result.odometry, relations)
+            rel["of_total"] = int(len(seq.relations.t1))
+            out["relations"] = rel
     return out
+
+
+def relations_within(relations: Relations, times: np.ndarray) -> Relations:
+    """The relations whose two timestamps both belong to processed scans (all of them for a
+    full run; those inside the slice when `steps.max_scans` is set)."""
+    from slamlab.eval.relations import find_times
+
+    keep = find_times(times, relations.t1)[1] & find_times(times, relations.t2)[1]
+    if keep.all():
+        return relations
+    return Relations(relations.t1[keep], relations.t2[keep], relations.rel[keep], relations.path)
 
 
 def run_texture_stage(seq: Sequence, result: SlamResult, cfg: DictConfig, run_dir: Path) -> dict:
@@ -194,7 +210,7 @@ def run_pipeline(
         artifacts.write_tum(run_dir / "trajectory_causal.tum", result.times, result.causal)
         artifacts.write_tum(run_dir / "odometry.tum", result.times, result.odometry)
         if seq.ground_truth is not None:
-            artifacts.write_tum(run_dir / "groundtruth.tum", result.times, seq.ground_truth.poses)
+            artifacts.write_tum(run_dir / "groundtruth.tum", result.times, seq.ground_truth.poses[: len(result.times)])
         artifacts.write_steps(run_dir, result.steps)
 
         if texture_enabled(seq, cfg):

@@ -16,7 +16,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-COMPARED_FILES = ("trajectory.tum", "trajectory_causal.tum", "odometry.tum", "steps.csv")
+COMPARED_FILES = ("trajectory.tum", "trajectory_causal.tum", "odometry.tum")
 # Metrics that measure the machine, not the algorithm.
 VOLATILE = re.compile(r"(runtime|_per_s$|realtime|memory|_ms$|time_s$|^ms_)")
 
@@ -50,6 +50,22 @@ def first_metric_difference(a: object, b: object, path: str = "") -> str | None:
     return None
 
 
+def first_steps_difference(a: Path, b: Path) -> str | None:
+    """Compare the per-step tables, except the step wall times."""
+    import pandas as pd
+
+    if not a.exists():
+        return None
+    ta, tb = pd.read_csv(a, dtype=str), pd.read_csv(b, dtype=str)
+    cols = [c for c in ta.columns if not VOLATILE.search(c)]
+    if list(ta.columns) != list(tb.columns) or len(ta) != len(tb):
+        return f"steps.csv: shape {ta.shape} originally, {tb.shape} in the re-run"
+    for i, (ra, rb) in enumerate(zip(ta[cols].itertuples(index=False), tb[cols].itertuples(index=False))):
+        if ra != rb:
+            return f"steps.csv row {i}:\n  original: {tuple(ra)}\n  re-run:   {tuple(rb)}"
+    return None
+
+
 def compare_runs(original: Path, rerun: Path) -> str | None:
     """None when the re-run reproduces the original, else the first difference."""
     for name in COMPARED_FILES:
@@ -59,6 +75,9 @@ def compare_runs(original: Path, rerun: Path) -> str | None:
             diff = first_text_difference(original / name, rerun / name)
             if diff:
                 return diff
+    diff = first_steps_difference(original / "steps.csv", rerun / "steps.csv")
+    if diff:
+        return diff
     ma = json.loads((original / "metrics.json").read_text())
     mb = json.loads((rerun / "metrics.json").read_text())
     return first_metric_difference(ma, mb)

@@ -1,0 +1,12 @@
+"""Texture mapping: colour the floor of the occupancy map from the Kinect RGB-D frames.
+
+Modules (one step each, in pipeline order):
+- `backproject`: depth (m, already un-mirrored by the reader) -> IR-frame points, optional
+  lens undistortion through a per-pixel ray table;
+- `ground`: floor detectors chosen by `conf/ground/*.yaml` (`threshold`, `plane`, `image_plane`);
+- `align`: IR frame -> RGB frame (R, T mm) -> RGB pixel -> colour;
+- `texture_map`: the colour grid aligned with the occupancy grid (mean or robust average);
+- `pipeline`: `run_texture(sequence, times, poses, grid, ground_cfg, texture_cfg, progress)`
+  -> `TextureResult`, `save_texture_outputs`, `texture_metrics` (from `slamlab.eval.texture`);
+- `synthetic`: analytic RGB-D frames of a textured floor for tests and benchmarks.
+"""

@@ -1,0 +1,160 @@
+"""The whole run: config -> run directory, reproducibility, bad config, interruption, CLI."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from hydra import compose, initialize_config_module
+
+from slamlab import artifacts
+from slamlab.errors import ConfigError
+from slamlab.pipeline import RunDirectoryInUse, run_pipeline
+
+SHORT_SIM = ["dataset.duration_s=20", "particles=10"]
+
+
+def make_cfg(overrides: list[str]):
+    with initialize_config_module(config_module="slamlab.conf", version_base="1.3"):
+        return compose(config_name="config", overrides=overrides)
+
+
+@pytest.fixture(scope="module")
+def sim_run(sim_cache, tmp_path_factory) -> Path:
+    """One short simulated run with texture, shared by the checks below."""
+    run_dir = tmp_path_factory.mktemp("run") / "r"
+    cfg = make_cfg([*SHORT_SIM, f"dataset.cache_dir={sim_cache}"])
+    run_pipeline(cfg, run_dir, overrides=SHORT_SIM, progress="off")
+    return run_dir
+
+
+def test_run_directory_holds_every_artifact(sim_run):
+    for name in (
+        "map.png", "map.pgm", "map.yaml", "map_logodds.npz", "trajectory.tum", "trajectory_causal.tum",
+        "odometry.tum", "groundtruth.tum", "steps.csv", "steps.parquet", "metrics.json", "manifest.json",
+        "texture.png", "texture_over_map.png", "report.html",
+    ):
+        assert (sim_run / name).is_file(), name
+    assert not list(sim_run.glob(f"{artifacts.TMP_MARK}*"))
+
+
+def test_metrics_are_consistent_with_the_files(sim_run):
+    m = json.loads((sim_run / "metrics.json").read_text())
+    assert m["status"] == "ok" and m["particles"] == 10
+    times, traj = artifacts.read_tum(sim_run / "trajectory.tum")
+    _, truth = artifacts.read_tum(sim_run / "groundtruth.tum")
+    _, odom = artifacts.read_tum(sim_run / "odometry.tum")
+    assert m["scans"] == len(times)
+    rmse = float(np.sqrt(np.mean(np.sum((traj[:, :2] - truth[:, :2]) ** 2, axis=1))))
+    assert m["trajectory"]["rmse_m"] == pytest.approx(rmse, abs=1e-6)
+    # SLAM corrects the simulator's drifting odometry
+    odo_rmse = float(np.sqrt(np.mean(np.sum((odom[:, :2] - truth[:, :2]) ** 2, axis=1))))
+    assert m["trajectory"]["rmse_m"] < odo_rmse
+    steps = pd.read_csv(sim_run / "steps.csv")
+    assert m["processed_steps"] == len(steps)
+    assert m["neff_min"] == pytest.approx(steps["neff"].min())
+    assert m["resample_count"] == int(steps["resampled"].sum())
+    assert m["texture"]["status"] == "ok" and m["texture"]["covered_area_m2"] > 1.0
+
+
+def test_manifest_can_reproduce_the_run(sim_run):
+    man = json.loads((sim_run / "manifest.json").read_text())
+    assert man["seed"] == 0 and man["config"]["particles"] == 10
+    assert len(man["data"]["sha256"]) == 64 and man["data"]["files"]
+    assert man["slamlab_version"]
+
+
+def test_same_seed_same_bytes_other_seed_differs(sim_cache, tmp_path):
+    base = [*SHORT_SIM, f"dataset.cache_dir={sim_cache}", "texture=none", "report=false", "steps.max_scans=300"]
+    for name, seed in (("a", 0), ("b", 0), ("c", 1)):
+        run_pipeline(make_cfg([*base, f"seed={seed}"]), tmp_path / name, progress="off")
+    a, b, c = ((tmp_path / n / "trajectory.tum").read_bytes() for n in "abc")
+    assert a == b
+    assert a != c
+
+
+@pytest.mark.parametrize(
+    "override, key",
+    [
+        ("particles=0", "particles"),
+        ("resampler.threshold=1.5", "resampler.threshold"),
+        ("resampler.threshold=0", "resampler.threshold"),
+        ("map.resolution_m=-0.05", "map.resolution_m"),
+        ("mode=fast", "mode"),
+    ],
+)
+def test_impossible_values_name_the_key(override, key, tmp_path):
+    cfg = make_cfg([override])
+    with pytest.raises(ConfigError) as exc:
+        run_pipeline(cfg, tmp_path / "r", progress="off")
+    assert exc.value.key == key
+    # the failed run says why, and leaves no artifacts but that
+    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert m["status"] == "failed" and key in m["error"]
+    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["metrics.json"]
+
+
+def test_a_finished_run_is_never_overwritten(sim_run):
+    before = (sim_run / "trajectory.tum").read_bytes()
+    with pytest.raises(RunDirectoryInUse):
+        run_pipeline(make_cfg(SHORT_SIM), sim_run, progress="off")
+    assert (sim_run / "trajectory.tum").read_bytes() == before
+
+
+def test_interrupted_run_leaves_no_half_written_files(sim_cache, tmp_path):
+    cfg = make_cfg([*SHORT_SIM, f"dataset.cache_dir={sim_cache}", "texture=none"])
+
+    def interrupt(done: int, total: int) -> None:
+        if done == 20:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_pipeline(cfg, tmp_path / "r", progress=interrupt)
+    files = sorted(p.name for p in (tmp_path / "r").iterdir())
+    assert files == ["metrics.json"]
+    assert json.loads((tmp_path / "r" / "metrics.json").read_text())["status"] == "interrupted"
+
+
+def _cli(args: list[str], cwd: Path, cache: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "SLAMLAB_CACHE_DIR": str(cache), "MPLBACKEND": "Agg"}
+    return subprocess.run([sys.executable, "-m", "slamlab.cli.app", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_cli_bad_input_is_one_clear_line(tmp_path, sim_cache):
+    missing = tmp_path / "nowhere.clf"
+    proc = _cli(["dataset=carmen", f"dataset.path={missing}", f"hydra.run.dir={tmp_path / 'r'}"], tmp_path, sim_cache)
+    assert proc.returncode == 2
+    assert str(missing) in proc.stderr
+    assert "Traceback" not in proc.stderr
+    proc = _cli(["resampler=nonesuch"], tmp_path, sim_cache)
+    assert proc.returncode != 0 and "resampler" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_cli_refuses_a_used_run_dir(sim_run, tmp_path, sim_cache):
+    proc = _cli([f"hydra.run.dir={sim_run}"], tmp_path, sim_cache)
+    assert proc.returncode == 2 and "never overwrites" in proc.stderr
+    assert json.loads((sim_run / "metrics.json").read_text())["status"] == "ok"
+
+
+def test_verify_says_identical_then_finds_a_tampered_line(tmp_path, sim_cache):
+    run = tmp_path / "run"
+    args = [*SHORT_SIM, f"dataset.cache_dir={sim_cache}", "steps.max_scans=200", "texture=none", "report=false",
+            f"hydra.run.dir={run}"]
+    assert _cli(args, tmp_path, sim_cache).returncode == 0
+    env = {**os.environ, "SLAMLAB_CACHE_DIR": str(sim_cache)}
+    ok = subprocess.run([sys.executable, "-m", "slamlab.cli.verify", str(run)], capture_output=True, text=True, env=env)
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    assert "IDENTICAL" in ok.stdout
+    lines = (run / "trajectory.tum").read_text().splitlines()
+    lines[50] = lines[50].replace(lines[50].split()[1], "123.000000000", 1)
+    (run / "trajectory.tum").write_text("\n".join(lines) + "\n")
+    bad = subprocess.run([sys.executable, "-m", "slamlab.cli.verify", str(run)], capture_output=True, text=True, env=env)
+    assert bad.returncode == 1
+    assert "trajectory.tum line 51" in bad.stdout
