@@ -49,7 +49,11 @@ def fmt_number(v: Any, digits: int = 4) -> str:
             return "∞" if v > 0 else "-∞"
         if v == int(v) and abs(v) < 1e9:
             return str(int(v)) if abs(v) >= 1 or v == 0 else f"{v:g}"
-        return f"{v:.{digits}g}"
+        text = f"{v:.{digits}g}"
+        if "e" in text and 1e-3 <= abs(v) < 1e7:
+            # '2e+02' reads badly in a table: round to whole units instead.
+            text = f"{v:.0f}"
+        return text
     return str(v)
 
 

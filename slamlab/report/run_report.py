@@ -14,7 +14,6 @@ from typing import Any
 import yaml
 
 from slamlab.report import figures
-from slamlab.report.columns import METRIC_BY_KEY
 from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
 from slamlab.report.rundir import REPORT_FILE, TEXTURE_FILES, RunDir, flatten, load_run
 
@@ -65,8 +64,7 @@ def _metric_sections(metrics: dict[str, Any]) -> list[tuple[str, list[tuple[str,
                     for kk, vv in flatten(v).items()]
             subs.append((k, rows))
         else:
-            spec = METRIC_BY_KEY.get(k)
-            top.append((f"{k}" + (f"  ({spec.label})" if spec and spec.label != k else ""), fmt_number(v)))
+            top.append((k, fmt_number(v)))
     return ([("run", top)] if top else []) + subs
 
 
