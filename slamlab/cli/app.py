@@ -39,8 +39,8 @@ def _limit_threads_for_parallel_jobs() -> None:
 def _hydra_main(cfg: DictConfig) -> None:
     hc = HydraConfig.get()
     multirun = hc.mode == RunMode.MULTIRUN
-    if multirun and "joblib" in str(hc.launcher.get("_target_", "")).lower():
-        _limit_threads_for_parallel_jobs()
+    if multirun and "BasicLauncher" not in str(hc.launcher.get("_target_", "")):
+        _limit_threads_for_parallel_jobs()  # joblib, submitit, ray: jobs run side by side
     run_dir = Path(hc.runtime.output_dir)
     try:
         run_pipeline(cfg, run_dir, overrides=list(hc.overrides.task), progress=cfg.get("progress", "auto"))
