@@ -57,6 +57,15 @@ def test_same_seed_same_trajectory_bit_for_bit():
     assert c.trajectory.tobytes() != a.trajectory.tobytes()
 
 
+def test_smoothed_path_ends_at_the_final_best_particle():
+    # the last step resamples (threshold 1.0 always does), which must not change whose path
+    # is reported: the final best particle's, so its last processed pose is the causal one.
+    res = run_slam(_room_sequence(), _cfg("particles=20", "matcher=likelihood", "resampler.threshold=1.0"))
+    last = int(res.extras["step_scans"][-1])
+    assert bool(res.steps["resampled"].iloc[-1])
+    np.testing.assert_array_equal(res.trajectory[last], res.causal[last])
+
+
 @pytest.mark.parametrize("matcher", ["grid", "likelihood"])
 def test_slam_beats_odometry_on_a_known_room(matcher):
     seq = _room_sequence()

@@ -209,8 +209,10 @@ def run_slam(
             progress(k + 1, n_steps)
     runtime = time.perf_counter() - t_loop
 
-    # the final best particle's own path, followed back through its ancestors
-    j = int(np.argmax(logw))
+    # the final best particle's own path, followed back through its ancestors. `best` indexes
+    # the last step's particles before resampling (the set hist_poses[-1] holds); after a
+    # resample the weights are uniform and would no longer say which particle was best.
+    j = best
     smooth = np.empty((n_steps, 3))
     for k in range(n_steps - 1, -1, -1):
         smooth[k] = hist_poses[k, j]
