@@ -116,6 +116,18 @@ class DepthPoints:
         return int(self.u.shape[0])
 
 
+_TABLE_CACHE: dict[tuple, tuple[np.ndarray, ...]] = {}
+
+
+def _intrinsics_key(intr: CameraIntrinsics, stride: int, undistort: bool, height: int, width: int) -> tuple:
+    return (
+        tuple(np.asarray(intr.fc, dtype=np.float64).tolist()),
+        tuple(np.asarray(intr.cc, dtype=np.float64).tolist()),
+        tuple(np.asarray(intr.kc, dtype=np.float64).tolist()),
+        float(intr.alpha_c), intr.width, intr.height, stride, undistort, height, width,
+    )  # fmt: skip
+
+
 class Backprojector:
     """Turns depth images of one camera into `DepthPoints`, with the ray table precomputed.
 
@@ -144,6 +156,11 @@ class Backprojector:
     def _table(self, height: int, width: int) -> tuple[np.ndarray, ...]:
         key = (height, width)
         if key not in self._tables:
+            # Shared across instances: the SLAM and the odometry texture runs use the same camera.
+            ikey = _intrinsics_key(self.intrinsics, self.stride, self.undistort, height, width)
+            if ikey in _TABLE_CACHE:
+                self._tables[key] = _TABLE_CACHE[ikey]
+                return self._tables[key]
             intr = scaled_intrinsics(self.intrinsics, width, height)
             s = self.stride
             v, u = np.mgrid[0:height:s, 0:width:s]
@@ -159,6 +176,9 @@ class Backprojector:
                 xd.astype(np.float32).ravel(),
                 yd.astype(np.float32).ravel(),
             )
+            if len(_TABLE_CACHE) >= 8:  # a handful of cameras per process at most
+                _TABLE_CACHE.pop(next(iter(_TABLE_CACHE)))
+            _TABLE_CACHE[ikey] = self._tables[key]
         return self._tables[key]
 
     def _ray_ok(self, height: int, width: int) -> np.ndarray:

@@ -7,11 +7,13 @@ Adding a detector = one class here (or anywhere importable) + one YAML file.
 
 World frame: z up, z = 0 on the floor (the body origin is `body_height_m` above it).
 
-| detector | test | cost at 512x424 (see benchmarks/bench_texture.py) |
+| detector | test | ms/frame at 512x424, whole frame (detector alone) |
 | --- | --- | --- |
-| `threshold` | world height |z| < tolerance_m | cheapest: one 3x3 transform per point |
-| `plane` | Open3D RANSAC `segment_plane` on a subsample of the world points; accepted when the normal is within `max_tilt_deg` of vertical and the plane within `max_height_m` of z = 0; inliers within `distance_threshold_m` | RANSAC on `fit_max_points`, plus an Open3D copy |
-| `image_plane` | the slides' test |a0' u + a1' v + a2' + a3' d| < eps in image and inverse-depth coordinates, the a' from the head's pose | no 3D transform at all |
+| `threshold` | world height |z| < tolerance_m | 16.5 (0.26) |
+| `plane` | Open3D RANSAC `segment_plane` on a subsample of the world points; accepted when the normal is within `max_tilt_deg` of vertical and the plane within `max_height_m` of z = 0; inliers within `distance_threshold_m`, refitted | 22 (10) |
+| `image_plane` | the slides' test |a0' u + a1' v + a2' + a3' d| < eps in image and inverse-depth coordinates, the a' from the head's pose | 14.5 (0.24) |
+
+(benchmarks/bench_texture.py, 2 shared cores, stride 1, 1920x1080 colour; medians.)
 """
 
 from __future__ import annotations
@@ -199,7 +201,9 @@ class PlaneGround(GroundDetector):
             cols = [v[inl].astype(np.float64) for v in (x, y, z)]
             mean = np.array([v.mean() for v in cols])
             dev = [v - m for v, m in zip(cols, mean)]
-            cov = np.array([[np.dot(dev[i], dev[j]) for j in range(3)] for i in range(3)])
+            # Not np.dot: OpenBLAS threads its large dot products, and on a busy 2-core machine
+            # waking those threads cost ~150 ms per frame; a plain multiply-sum is ~1 ms.
+            cov = np.array([[float((dev[i] * dev[j]).sum()) for j in range(3)] for i in range(3)])
             _, vecs = np.linalg.eigh(cov)
             n = vecs[:, 0]  # smallest eigenvalue: the plane normal
             if n @ plane[:3] < 0:
