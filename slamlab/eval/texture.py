@@ -4,8 +4,9 @@
   the covered cells, against the true floor texture resampled to the texture grid by
   averaging the true texture's pixels inside each cell (our cells are averages too);
 - covered area (m^2) and the fraction of the true floor it represents;
-- sharpness: mean absolute colour difference between 4-neighbouring covered cells - a
-  blurred (mis-registered) texture scores lower than the truth's own value;
+- sharpness: mean absolute colour difference between 4-neighbouring covered cells, beside
+  the truth's own value over the same cells. A weak signal: a drifting trajectory mostly
+  SHIFTS the texture (sharp but wrong), so compare trajectories by colour error;
 - ground detection precision / recall per detector on the labelled depth frames.
 
 `texture_metrics(result, truth)` returns a JSON-friendly dict (the `texture` section of

@@ -49,6 +49,7 @@ __all__ = [
     "texture_metrics",
     "texture_enabled",
     "interpolate_poses",
+    "PoseTrack",
     "body_to_world",
     "build_detector",
 ]
@@ -147,33 +148,45 @@ class TextureResult:
 
 
 # ---- poses --------------------------------------------------------------------------------
-def interpolate_poses(times: np.ndarray, poses: np.ndarray, t_query: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
-    """Trajectory (x m, y m, theta rad) at `t_query` (s), linear in x, y and UNWRAPPED theta.
+class PoseTrack:
+    """A trajectory (x m, y m, theta rad) at times (s), queried at any time: linear in x, y and
+    UNWRAPPED theta (so a turn through +-pi interpolates the short way).
 
     `times` need not be sorted: THOR and simulated logs are monotonic, but CARMEN clocks can
-    step back, so samples are sorted by time (stable) first; duplicate times keep the first.
-    Queries outside [min(times), max(times)] are clamped to the end pose; the second return
-    value is how far (s) each query lies outside the span (0 inside), for the caller to reject.
-    Returns (poses (M, 3), gap_s (M,)) or ((3,), scalar) for a scalar query."""
-    times = np.asarray(times, dtype=np.float64).reshape(-1)
-    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-    if times.size == 0 or times.size != poses.shape[0]:
-        raise ValueError(f"times ({times.size}) and poses ({poses.shape[0]}) must be equal, non-empty")
-    order = np.argsort(times, kind="stable")
-    t = times[order]
-    p = poses[order]
-    first = np.concatenate([[True], np.diff(t) > 0])
-    t, p = t[first], p[first]
-    theta = np.unwrap(p[:, 2])
-    q = np.asarray(t_query, dtype=np.float64)
-    scalar = q.ndim == 0
-    q = q.reshape(-1)
-    out = np.stack([np.interp(q, t, p[:, 0]), np.interp(q, t, p[:, 1]), np.interp(q, t, theta)], axis=-1)
-    out[:, 2] = (out[:, 2] + np.pi) % (2.0 * np.pi) - np.pi
-    gap = np.maximum(t[0] - q, 0.0) + np.maximum(q - t[-1], 0.0)
-    if scalar:
-        return out[0], gap[0]
-    return out, gap
+    step back, so samples are sorted by time (stable) once; duplicate times keep the first.
+    Queries outside [min(times), max(times)] are clamped to the end pose and report how far
+    (s) they lie outside, for the caller to reject."""
+
+    def __init__(self, times: np.ndarray, poses: np.ndarray):
+        times = np.asarray(times, dtype=np.float64).reshape(-1)
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        if times.size == 0 or times.size != poses.shape[0]:
+            raise ValueError(f"times ({times.size}) and poses ({poses.shape[0]}) must be equal, non-empty")
+        order = np.argsort(times, kind="stable")
+        t, p = times[order], poses[order]
+        first = np.concatenate([[True], np.diff(t) > 0])
+        self.t = t[first]
+        self.xy = p[first, :2]
+        self.theta = np.unwrap(p[first, 2])
+
+    def __call__(self, t_query: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """(poses (M, 3), gap_s (M,)), or ((3,), scalar) for a scalar query."""
+        q = np.asarray(t_query, dtype=np.float64)
+        scalar = q.ndim == 0
+        q = q.reshape(-1)
+        t = self.t
+        out = np.stack([np.interp(q, t, self.xy[:, 0]), np.interp(q, t, self.xy[:, 1]), np.interp(q, t, self.theta)], axis=-1)
+        out[:, 2] = (out[:, 2] + np.pi) % (2.0 * np.pi) - np.pi
+        gap = np.maximum(t[0] - q, 0.0) + np.maximum(q - t[-1], 0.0)
+        if scalar:
+            return out[0], gap[0]
+        return out, gap
+
+
+def interpolate_poses(times: np.ndarray, poses: np.ndarray, t_query: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """One-off `PoseTrack(times, poses)(t_query)`: the trajectory at `t_query` (s) and how far
+    (s) each query lies outside the trajectory's time span (0 inside)."""
+    return PoseTrack(times, poses)(t_query)
 
 
 def body_to_world(pose: np.ndarray, body_height_m: float, roll: float = 0.0, pitch: float = 0.0) -> np.ndarray:
@@ -245,10 +258,10 @@ def run_texture(
         )
     if sequence.body_height_m is None:
         raise DataError(sequence.name, "has no body height: cannot place the camera above the floor")
-    times = np.asarray(times, dtype=np.float64).reshape(-1)
-    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-    if times.size == 0 or times.size != poses.shape[0]:
-        raise ConfigError("texture", f"times ({times.size}) and poses ({poses.shape[0]}) must have equal, non-zero length")
+    try:
+        track = PoseTrack(times, poses)
+    except ValueError as exc:
+        raise ConfigError("texture", f"trajectory: {exc}") from None
 
     calib: KinectCalibration = sequence.calibration
     if bool(_cfg(texture_cfg, "calibration_mirrored", False)):
@@ -325,7 +338,7 @@ def run_texture(
         try:
             used, dt_detect, dt_eval = _process_frame(
                 frame, sequence, calib, backproject, detector, det_name, compare, labels, detection,
-                acc, times, poses, max_gap, max_rgb_dt, distort_rgb, skip,
+                acc, track, max_gap, max_rgb_dt, distort_rgb, skip,
             )  # fmt: skip
         except (ValueError, IndexError, DataError) as exc:
             # The frame's own data is inconsistent (e.g. odd shapes): skip it, keep going.
@@ -378,8 +391,7 @@ def _process_frame(
     labels: dict[int, np.ndarray],
     detection: dict[str, DetectionCounts],
     acc: TextureAccumulator,
-    times: np.ndarray,
-    poses: np.ndarray,
+    track: PoseTrack,
     max_gap: float,
     max_rgb_dt: float,
     distort_rgb: bool,
@@ -394,7 +406,7 @@ def _process_frame(
     if len(pts) == 0:
         skip("no_valid_depth")
         return False, 0.0, 0.0
-    pose, gap = interpolate_poses(times, poses, frame.t)
+    pose, gap = track(frame.t)
     if gap > max_gap:
         skip("outside_trajectory", frame, f"t={frame.t:.3f} is {gap:.2f} s outside the trajectory")
         return False, 0.0, 0.0
