@@ -22,13 +22,14 @@ write deliberately bad logs: non-monotonic time, NaN ranges, ...).
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import scipy.io
+
+from slamlab.artifacts import atomic_path
 
 __all__ = [
     "DepthRecord",
@@ -99,17 +100,12 @@ def _atomic_savemat(path: str | Path, variables: Mapping[str, object]) -> Path:
     """savemat to `path` via a temporary file + rename (no half-written file on failure)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with tmp.open("w+b") as f:  # a file object: savemat must not append '.mat'
-            scipy.io.savemat(f, dict(variables), format="5", oned_as="row")
-            # scipy stamps the wall-clock time into the header text: a fixed text makes the
-            # same arrays give byte-identical files (reproducible data fingerprints).
-            f.seek(0)
-            f.write(_HEADER_TEXT.ljust(116, b" ")[:116])
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with atomic_path(path) as tmp, tmp.open("w+b") as f:  # a file object: savemat must not append '.mat'
+        scipy.io.savemat(f, dict(variables), format="5", oned_as="row")
+        # scipy stamps the wall-clock time into the header text: a fixed text makes the
+        # same arrays give byte-identical files (reproducible data fingerprints).
+        f.seek(0)
+        f.write(_HEADER_TEXT.ljust(116, b" ")[:116])
     return path
 
 

@@ -4,14 +4,14 @@ and the re-run command of a run."""
 from __future__ import annotations
 
 import math
-import os
 import shlex
-import tempfile
 from datetime import datetime
 from pathlib import Path
 from typing import Any
 
 import jinja2
+
+from slamlab.artifacts import write_text
 
 TEMPLATE_DIR = Path(__file__).resolve().parent / "templates"
 
@@ -58,20 +58,10 @@ def fmt_number(v: Any, digits: int = 4) -> str:
 
 
 def atomic_write_text(path: Path, text: str) -> Path:
-    """Write to a temp file beside `path`, then rename: readers never see a half-written
-    page, and an interrupted build leaves the previous report intact."""
+    """Write via a temp file beside `path`, then rename (slamlab.artifacts): readers never
+    see a half-written page, and an interrupted build leaves the previous report intact."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    write_text(path, text)
     return path
 
 

@@ -24,7 +24,6 @@ outside the trajectory's time span, wrong shapes) is skipped and counted in
 from __future__ import annotations
 
 import logging
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -33,6 +32,7 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from slamlab.artifacts import atomic_path
 from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.eval.texture import DetectionCounts, texture_metrics
 from slamlab.frames import GridImage, KinectCalibration, RGBDFrame, Sequence
@@ -451,21 +451,11 @@ def _process_frame(
 
 
 # ---- outputs ------------------------------------------------------------------------------
-def _atomic_target(path: Path) -> Path:
-    # Same directory (os.replace is atomic only within a filesystem), same suffix (writers
-    # pick the format from it), a name no reader mistakes for a finished artifact.
-    return path.with_name(f".partial-{os.getpid()}-{path.name}")
-
-
 def _write_png(path: Path, rgba: np.ndarray) -> None:
     import matplotlib.pyplot as plt
 
-    tmp = _atomic_target(path)
-    try:
+    with atomic_path(path) as tmp:
         plt.imsave(tmp, rgba, format="png")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def texture_image(result: TextureResult) -> np.ndarray:
@@ -515,8 +505,8 @@ def save_texture_outputs(
         pcd.points = o3d.utility.Vector3dVector(np.asarray(result.floor_points, dtype=np.float64))
         pcd.colors = o3d.utility.Vector3dVector(np.asarray(result.floor_colors, dtype=np.float64) / 255.0)
         pcd = pcd.voxel_down_sample(float(voxel_m or result.resolution_m))
-    tmp = _atomic_target(p)
-    try:
+    # atomic_path keeps the suffix: Open3D picks the format from it
+    with atomic_path(p) as tmp:
         if len(pcd.points) == 0:
             # Open3D refuses to write an empty cloud; an empty but valid PLY keeps the run
             # directory's file set fixed (nothing seen is a result, not an error).
@@ -526,8 +516,5 @@ def save_texture_outputs(
             )
         elif not o3d.io.write_point_cloud(str(tmp), pcd, write_ascii=False):
             raise OSError(f"Open3D could not write {tmp}")
-        os.replace(tmp, p)
-    finally:
-        tmp.unlink(missing_ok=True)
     written["cloud"] = p
     return written
