@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from hydra.errors import InstantiationException
 from hydra.utils import instantiate
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from slamlab import artifacts
 from slamlab.errors import ConfigError, DataError, SlamlabError
@@ -160,7 +160,9 @@ def run_texture_stage(seq: Sequence, result: SlamResult, cfg: DictConfig, run_di
     out: dict = {}
     slam_tex = run_texture(seq, result.times, result.trajectory, result.log_odds, cfg.ground, cfg.texture)
     save_texture_outputs(slam_tex, occ, run_dir, prefix="texture")
-    odo_tex = run_texture(seq, result.times, result.odometry, result.log_odds, cfg.ground, cfg.texture)
+    # detection scores do not depend on the trajectory: score the detectors once, with SLAM
+    odo_cfg = OmegaConf.merge(cfg.texture, {"evaluate_detectors": []})
+    odo_tex = run_texture(seq, result.times, result.odometry, result.log_odds, cfg.ground, odo_cfg)
     save_texture_outputs(odo_tex, occ, run_dir, prefix="texture_odometry")
     if seq.ground_truth is not None:
         out = texture_metrics(slam_tex, seq.ground_truth)
