@@ -101,6 +101,8 @@ def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> dict:
         "neff_mean": float(np.nanmean(neff)),
         "neff_min": float(np.nanmin(neff)),
         "trajectory_fill": result.fill,
+        # linear weighting: steps where every weight underflowed and uniform weights took over
+        "weighting_underflows": int(result.extras.get("weighting_underflows", 0)),
     }
 
 
