@@ -44,6 +44,7 @@ def _hydra_main(cfg: DictConfig) -> None:
     run_dir = Path(hc.runtime.output_dir)
     try:
         run_pipeline(cfg, run_dir, overrides=list(hc.overrides.task), progress=cfg.get("progress", "auto"))
+        log.info("outputs in %s%s", run_dir, " (open report.html)" if cfg.get("report", True) else "")
     except Exception as exc:
         err = user_error(exc)
         if err is None and not multirun:
