@@ -64,6 +64,13 @@ def load_sequence(dataset_cfg: DictConfig) -> Sequence:
     return seq
 
 
+def require_values(cfg: DictConfig) -> None:
+    """Keys marked `???` in the config (e.g. `dataset.path`) must be given by the user."""
+    missing = sorted(k for k in OmegaConf.missing_keys(cfg) if not k.startswith("hydra."))
+    if missing:
+        raise ConfigError(missing[0], f"is required: give it on the command line, e.g. {missing[0]}=...")
+
+
 def peak_memory_mb() -> float:
     """Peak resident set size of this process (MB)."""
     kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -197,6 +204,7 @@ def run_pipeline(
     _check_fresh(run_dir)
     t0 = time.perf_counter()
     try:
+        require_values(cfg)
         validate_config(cfg)
         seq = load_sequence(cfg.dataset)
         log.info("dataset %s: %d scans, %s RGB-D frames", seq.name, len(seq), seq.rgbd_count if seq.rgbd else "no")
