@@ -85,6 +85,7 @@ def test_same_seed_same_bytes_other_seed_differs(sim_cache, tmp_path):
         ("particles=0", "particles"),
         ("resampler.threshold=1.5", "resampler.threshold"),
         ("dataset=carmen", "dataset.path"),  # a required value left out
+        ("dataset.seed=abc", "dataset.seed"),  # a dataset knob of the wrong type
     ],
 )
 def test_impossible_values_name_the_key(override, key, tmp_path):

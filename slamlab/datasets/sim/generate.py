@@ -319,18 +319,8 @@ def load_sim(
     `paths.cache_dir()/sim`; atomic), then read back through `load_thor` like real data.
     `calibration_dir`: a real `cameraParam/` folder to take the Kinect numbers from (default:
     the built-in copy of the THOR calibration). `regenerate`: rebuild even if cached."""
-    params = SimParams(
-        seed=int(seed), duration_s=float(duration_s), stand_s=float(stand_s), walk_speed_mps=float(walk_speed_mps),
-        turn_rate_dps=float(turn_rate_dps), n_clutter=int(n_clutter), n_people=int(n_people),
-        step_freq_hz=float(step_freq_hz), roll_amp_deg=float(roll_amp_deg), pitch_amp_deg=float(pitch_amp_deg),
-        range_noise_m=float(range_noise_m), dropout_fraction=float(dropout_fraction),
-        odom_scale_bias=float(odom_scale_bias), odom_yaw_drift_deg_per_min=float(odom_yaw_drift_deg_per_min),
-        odom_yaw_bias_deg_per_m=float(odom_yaw_bias_deg_per_m), odom_noise_m_per_sqrt_s=float(odom_noise_m_per_sqrt_s),
-        odom_noise_deg_per_sqrt_s=float(odom_noise_deg_per_sqrt_s), imu_noise_deg=float(imu_noise_deg),
-        rgbd=bool(rgbd), rgb=bool(rgb), kinect_rate_hz=float(kinect_rate_hz), kinect_scale=float(kinect_scale),
-        depth_noise_mm=float(depth_noise_mm), label_every=int(label_every), texture_res_m=float(texture_res_m),
-        occupancy_res_m=float(occupancy_res_m),
-    )  # fmt: skip
+    given = dict(locals())
+    params = SimParams(**{f.name: _typed(f.name, f.type, given[f.name]) for f in dataclasses.fields(SimParams)})
     validate_params(params)
     folder = sim_folder(params, calibration_dir, cache_dir)
     if regenerate or not folder.is_dir():
@@ -351,6 +341,26 @@ def read_sim_folder(folder: str | Path, name: str | None = None) -> Sequence:
     seq.ground_truth = gt
     seq.sources.append(str((folder / "sim.json").resolve()))
     return seq
+
+
+def _typed(key: str, kind: object, value: object) -> object:
+    """Convert a config value to the SimParams field's type, or name the key (`dataset.*`)."""
+    from slamlab.errors import ConfigError
+
+    kind_name = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
+    if kind_name == "bool":
+        if isinstance(value, bool):
+            return value
+        raise ConfigError(f"dataset.{key}", f"must be true or false, got {value!r}")
+    try:
+        number = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ConfigError(f"dataset.{key}", f"must be a number, got {value!r}") from None
+    if kind_name == "int":
+        if not number.is_integer():
+            raise ConfigError(f"dataset.{key}", f"must be an integer, got {value!r}")
+        return int(number)
+    return number
 
 
 def validate_params(p: SimParams) -> None:
