@@ -18,7 +18,7 @@ from pathlib import Path
 
 COMPARED_FILES = ("trajectory.tum", "trajectory_causal.tum", "odometry.tum")
 # Metrics that measure the machine, not the algorithm.
-VOLATILE = re.compile(r"(runtime|_per_s$|realtime|memory|_ms$|time_s$|^ms_)")
+VOLATILE = re.compile(r"(runtime|_per_s$|realtime|memory|(^|_)ms(_|$)|time_s$)")
 
 
 def first_text_difference(a: Path, b: Path) -> str | None:
