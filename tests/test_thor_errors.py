@@ -124,6 +124,20 @@ def test_mixed_layouts_name_the_record(tmp_path: Path) -> None:
     raises(tmp_path, "record 2", "different layout")
 
 
+@pytest.mark.parametrize("ucsd", [False, True])
+def test_non_finite_odometry_names_the_record(tmp_path: Path, ucsd: bool) -> None:
+    # In the UCSD layout the poses are a running sum: one NaN would spoil every later pose.
+    t = T0 + np.arange(N) * 0.025
+    pose = np.zeros((N, 3))
+    pose[5, 0] = np.nan
+    write_lidar_mat(tmp_path / "train_lidar0.mat", t, pose, np.zeros((N, 3)),
+                    np.full((N, 1081), 4.0, np.float32), ucsd_delta_pose=ucsd)
+    joint(tmp_path)
+    field = "delta_pose" if ucsd else "pose"
+    with pytest.raises(DataError, match=rf"train_lidar0.mat: record 5, field '{field}'"):
+        load_thor(tmp_path)
+
+
 def test_empty_logs(tmp_path: Path) -> None:
     scipy.io.savemat(tmp_path / "train_lidar0.mat", {"lidar": np.empty((1, 0), dtype=object)})
     joint(tmp_path)

@@ -34,6 +34,7 @@ from slamlab import robot
 from slamlab.datasets.calibration import load_kinect_calibration
 from slamlab.errors import DataError
 from slamlab.frames import KinectCalibration, ScanFrame, Sequence
+from slamlab.geometry import wrap_angle
 
 __all__ = ["load_thor", "read_lidar_mat", "read_joint_mat", "beam_angles", "LidarLog", "JointLog"]
 
@@ -191,16 +192,18 @@ def read_lidar_mat(path: str | Path) -> LidarLog:
             res[i] = get("res", 1)[0]
             rpy[i] = get("rpy", 3)
     _check_times(t, path, "record", "t")
+    # checked before the UCSD running sum, where one NaN would spoil every later pose
+    pose_field = "delta_pose" if ucsd else "pose"
+    bad_odom = np.flatnonzero(~np.all(np.isfinite(odom), axis=1))
+    if bad_odom.size:
+        raise DataError(path, f"{pose_field} is {odom[bad_odom[0]]}", record=f"record {bad_odom[0]}", field=pose_field)
     if ucsd:
         # Global odometry = running sum of the per-record changes (the writer stores
         # delta_pose[0] = first pose), theta wrapped to [-pi, pi).
         odom = np.cumsum(odom, axis=0)
-        odom[:, 2] = (odom[:, 2] + np.pi) % (2 * np.pi) - np.pi
+        odom[:, 2] = wrap_angle(odom[:, 2])
         res[:] = FOV_RAD / (N_BEAMS - 1)
         return LidarLog(t, odom, res, None, scans)
-    bad_odom = np.flatnonzero(~np.all(np.isfinite(odom), axis=1))
-    if bad_odom.size:
-        raise DataError(path, f"pose is {odom[bad_odom[0]]}", record=f"record {bad_odom[0]}", field="pose")
     bad_res = np.flatnonzero(~(np.isfinite(res) & (res > 0) & (res * (N_BEAMS - 1) <= 2 * np.pi)))
     if bad_res.size:
         raise DataError(path, f"angular resolution {res[bad_res[0]]} rad is impossible", record=f"record {bad_res[0]}", field="res")
