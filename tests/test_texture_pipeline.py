@@ -236,3 +236,25 @@ def test_save_empty_result(seq, grid, tmp_path):
     assert res.frames_total == 0 and res.messages
     save_texture_outputs(res, np.zeros(grid.data.shape), tmp_path)
     assert (tmp_path / "texture.png").is_file() and (tmp_path / "floor.ply").is_file()
+
+
+def test_covered_fraction_counts_floor_not_walls():
+    # truth: a 2 x 2 m floor texture; the true occupancy (coarser, other origin) marks its
+    # left half as wall. A texture grid (finer, other origin) that covers exactly the right
+    # half has covered all of the floor.
+    from slamlab.frames import GridImage, GroundTruth
+    from slamlab.texture.pipeline import TextureResult
+
+    tex = GridImage(np.full((100, 100, 3), 128, np.uint8), 0.02, (0.0, 0.0))
+    occ = np.zeros((12, 12), bool)
+    occ[:, :6] = True  # x in [-0.2, 1.0): wall
+    truth = GroundTruth(poses=np.zeros((1, 3)), occupancy=GridImage(occ, 0.2, (-0.2, -0.2)), floor_texture=tex)
+    res_m, origin = 0.05, (-0.5, -0.5)
+    count = np.zeros((60, 60), np.int64)
+    xs = origin[0] + (np.arange(60) + 0.5) * res_m
+    count[:, (xs > 1.0) & (xs < 2.0)] = 1
+    result = TextureResult(color=np.full((60, 60, 3), 128, np.uint8), count=count, resolution_m=res_m, origin_xy=origin,
+                           floor_points=np.zeros((0, 3)), floor_colors=np.zeros((0, 3), np.uint8), detector="threshold")
+    m = texture_metrics(result, truth)
+    assert m["covered_fraction"] == pytest.approx(1.0)
+    assert m["colour_error"] == pytest.approx(0.0)

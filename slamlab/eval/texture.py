@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from slamlab.eval.trajectory import sample_onto
 from slamlab.frames import GridImage, GroundTruth
 
 if TYPE_CHECKING:  # the pipeline imports this module; avoid the cycle at run time
@@ -142,10 +143,13 @@ def texture_metrics(result: TextureResult, truth: GroundTruth | None) -> dict:
     true_col, has = resample_to_grid(truth.floor_texture, result.count.shape, result.resolution_m, result.origin_xy)
     cov = result.covered & has
     out["evaluated_cells"] = int(np.count_nonzero(cov))
-    if truth.occupancy is not None and truth.occupancy.data.shape == result.count.shape:
-        floor_cells = has & ~np.asarray(truth.occupancy.data, dtype=bool)
-    else:
-        floor_cells = has
+    floor_cells = has
+    if truth.occupancy is not None:
+        # the true walls, looked up at the texture grid's cell centres (grids differ in size and origin)
+        target = GridImage(result.count, result.resolution_m, result.origin_xy)
+        wall = sample_onto(GridImage(truth.occupancy.data.astype(np.float64), truth.occupancy.resolution_m,
+                                     truth.occupancy.origin_xy), target)
+        floor_cells = has & ~(wall > 0.5)
     out["covered_fraction"] = float(np.count_nonzero(result.covered & floor_cells)) / max(1, int(np.count_nonzero(floor_cells)))
     if not np.any(cov):
         out["colour_error"] = float("nan")

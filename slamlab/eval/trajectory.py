@@ -36,7 +36,7 @@ def trajectory_errors(estimate: FloatArray, truth: FloatArray) -> dict[str, floa
     }
 
 
-def _sample_onto(src: GridImage, dst: GridImage) -> np.ndarray:
+def sample_onto(src: GridImage, dst: GridImage) -> np.ndarray:
     """Values of `src` at the centres of `dst`'s cells (nearest cell), NaN outside `src`."""
     H, W = dst.data.shape[:2]
     xs = dst.origin_xy[0] + (np.arange(W) + 0.5) * dst.resolution_m
@@ -64,7 +64,7 @@ def map_agreement(
     of a true wall; `occupied_recall` = fraction of true walls that were observed and lie
     within `tolerance_cells` of an estimated wall; `observed_cells`.
     No alignment: a map built along a drifted path scores lower, as it should."""
-    est = _sample_onto(log_odds, truth)
+    est = sample_onto(log_odds, truth)
     gt = np.asarray(truth.data).astype(bool)
     observed = np.isfinite(est) & (est != 0)
     est_occ = observed & (est > occupied_threshold)
