@@ -10,7 +10,7 @@ from slamlab.geometry import rot_y, trans
 from slamlab.slam.grid import MapSettings, OccupancyGrid
 from slamlab.slam.matcher import GridMatcher, LikelihoodFieldMatcher, offset_grid
 from slamlab.slam.motion import CourseMotion, Odometry4Motion
-from slamlab.slam.raycast import bresenham, raycast_update
+from slamlab.slam.raycast import bresenham, raycast_update, update_field
 from slamlab.slam.resample import MultinomialResampler, ResidualResampler, StratifiedResampler, SystematicResampler
 from slamlab.slam.scan import ScanPoints, scan_to_points
 from slamlab.slam.steps import fill_between_steps, select_steps
@@ -61,6 +61,23 @@ def test_grid_grows_and_keeps_content():
     assert g.grow_count >= 1
     r, c = g.cells(np.array([[0.55, 0.0], [5.0, -4.0]]))
     assert g.occupied()[r[0], c[0]] and g.occupied()[r[1], c[1]]
+
+
+def test_likelihood_field_is_right_after_the_grid_grows():
+    # a wall cell right next to the left edge: growing to the left must extend its field
+    # into the new margin exactly as a full recomputation would
+    g = OccupancyGrid(MapSettings(resolution_m=0.1, initial_size_m=2.0, growth_margin_m=1.0),
+                      field_sigma_m=0.1, field_radius_m=0.3)
+    g.insert(np.array([0.0, 0.0]), np.array([[-0.85, 0.0]]))  # hit lands in column 1
+    assert g.grow_count == 0
+    g.insert(np.array([0.0, 0.0]), np.array([[-3.0, 0.5]]))  # forces growth to the left
+    assert g.grow_count >= 1
+    full = np.zeros_like(g.field)
+    H, W = g.shape
+    update_field(g.log_odds, full, np.float32(g.s.occupied_threshold), g.kernel, 0, H, 0, W)
+    np.testing.assert_array_equal(g.field, full)
+    r, c = g.cells(np.array([[-0.95, 0.0]]))  # a new cell one step left of the old wall
+    assert g.field[r[0], c[0]] > 0.5
 
 
 # ---------------------------------------------------------------- scan to points

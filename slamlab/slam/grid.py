@@ -126,8 +126,26 @@ class OccupancyGrid:
         self.log_odds = np.pad(self.log_odds, ((pad_b, pad_t), (pad_l, pad_r)))
         if self.field is not None:
             self.field = np.pad(self.field, ((pad_b, pad_t), (pad_l, pad_r)))
+            self._refresh_field_margins(pad_b, pad_l, H, W)
         self.origin = self.origin - np.array([pad_l, pad_b]) * self.res
         self.grow_count += 1
+
+    def _refresh_field_margins(self, pad_b: int, pad_l: int, H: int, W: int) -> None:
+        """After growing: walls near the old edge reach R cells into the new margin, which
+        padding filled with zeros. Recompute the field in those bands (old grid: H x W,
+        now at rows pad_b.., cols pad_l..)."""
+        R = self.kernel.shape[0] // 2  # type: ignore[union-attr]
+        NH, NW = self.shape
+        thr = np.float32(self.s.occupied_threshold)
+        top, right = pad_b + H, pad_l + W
+        for r0, r1, c0, c1 in (
+            (0, NH, max(pad_l - R, 0), pad_l),  # left band
+            (0, NH, right, min(right + R, NW)),  # right band
+            (max(pad_b - R, 0), pad_b, 0, NW),  # bottom band
+            (top, min(top + R, NH), 0, NW),  # top band
+        ):
+            if r1 > r0 and c1 > c0:
+                update_field(self.log_odds, self.field, thr, self.kernel, r0, r1, c0, c1)
 
     def insert(self, sensor_xy: FloatArray, points_xy: FloatArray) -> None:
         """Ray-cast one scan: sensor position (2,) m, world hit points (M, 2) m."""
