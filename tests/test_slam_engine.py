@@ -10,6 +10,8 @@ from hydra import compose, initialize_config_dir
 from slamlab.errors import ConfigError
 from slamlab.frames import ScanFrame, Sequence
 from slamlab.slam.engine import run_slam, validate_config
+from slamlab.slam.matcher import GridMatcher
+from slamlab.slam.weighting import WeightUnderflowWarning
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 
@@ -86,10 +88,27 @@ def test_dead_reckoning_mode_follows_odometry():
     assert res.particles == 1 and res.resample_count == 0
 
 
-def test_linear_weighting_runs_and_reports_underflows():
+def test_linear_weighting_runs_without_underflow_on_a_good_map():
     res = run_slam(_room_sequence(30), _cfg("particles=10", "weighting=linear"))
     assert np.all(np.isfinite(res.trajectory))
-    assert res.extras["weighting_underflows"] >= 0
+    assert res.extras["weighting_underflows"] == 0
+
+
+def test_linear_weighting_underflow_is_counted_and_survived(monkeypatch):
+    # every correlation 0 (as on a map with no walls yet): w *= 0 leaves nothing to
+    # normalise at every update; the run must go on with uniform weights and say so
+    real_match = GridMatcher.match
+
+    def zero_scores(self, grid, poses, scan):
+        poses, scores = real_match(self, grid, poses, scan)
+        return poses, np.zeros_like(scores)
+
+    monkeypatch.setattr(GridMatcher, "match", zero_scores)
+    with pytest.warns(WeightUnderflowWarning, match="underflowed"):
+        res = run_slam(_room_sequence(30), _cfg("particles=10", "weighting=linear", "matcher=grid"))
+    assert np.all(np.isfinite(res.trajectory))
+    assert res.extras["weighting_underflows"] == res.extras["processed_steps"] - 1  # every update after the first
+    np.testing.assert_allclose(res.steps["best_weight"].iloc[1:], 0.1)  # uniform over 10 particles
 
 
 @pytest.mark.parametrize(
