@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from slamlab.frames import GridImage
-from slamlab.geometry import FloatArray, yaw_to_quaternion
+from slamlab.geometry import FloatArray, wrap_angle, yaw_to_quaternion
 
 TMP_MARK = ".partial-"
 
@@ -103,7 +103,7 @@ def read_tum(path: Path) -> tuple[FloatArray, FloatArray]:
     table = np.loadtxt(path, comments="#", ndmin=2)
     qz, qw = table[:, 6], table[:, 7]
     yaw = 2.0 * np.arctan2(qz, qw)
-    return table[:, 0], np.column_stack([table[:, 1], table[:, 2], (yaw + np.pi) % (2 * np.pi) - np.pi])
+    return table[:, 0], np.column_stack([table[:, 1], table[:, 2], wrap_angle(yaw)])
 
 
 def occupancy_probability(log_odds: np.ndarray) -> np.ndarray:

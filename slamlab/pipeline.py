@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import resource
 import sys
 import time
@@ -29,8 +30,10 @@ from slamlab.slam.result import SlamResult
 
 log = logging.getLogger("slamlab")
 
-# Files whose presence means a folder already holds a (finished or failed) run.
-RUN_MARKERS = ("metrics.json", "manifest.json", "trajectory.tum")
+# Created exclusively when a run starts: two processes given the same folder cannot both run.
+CLAIM_FILE = ".slamlab-run"
+# Files whose presence means a folder already holds a (finished, failed or running) run.
+RUN_MARKERS = (CLAIM_FILE, "metrics.json", "manifest.json", "trajectory.tum")
 
 
 class RunDirectoryInUse(SlamlabError):
@@ -77,13 +80,19 @@ def peak_memory_mb() -> float:
     return kb / 1024.0 if sys.platform != "darwin" else kb / 1024.0 / 1024.0
 
 
-def _check_fresh(run_dir: Path) -> None:
+def _claim(run_dir: Path) -> None:
+    """Make `run_dir` this run's own, or refuse if another run holds it."""
     taken = [m for m in RUN_MARKERS if (run_dir / m).exists()]
-    if taken:
-        raise RunDirectoryInUse(
-            f"{run_dir} already holds a run ({', '.join(taken)}); slamlab never overwrites a run. "
-            "Choose another hydra.run.dir."
-        )
+    if not taken:
+        try:  # O_EXCL: atomic, so of two runs started together only one gets the folder
+            os.close(os.open(run_dir / CLAIM_FILE, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+            return
+        except FileExistsError:
+            taken = [CLAIM_FILE]
+    raise RunDirectoryInUse(
+        f"{run_dir} already holds a run ({', '.join(taken)}); slamlab never overwrites a run. "
+        "Choose another hydra.run.dir."
+    )
 
 
 def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> dict:
@@ -181,11 +190,6 @@ def run_texture_stage(seq: Sequence, result: SlamResult, cfg: DictConfig, run_di
     return out
 
 
-def texture_enabled(seq: Sequence, cfg: DictConfig) -> bool:
-    """Texture runs only when the dataset has RGB-D and `texture` is not `none`."""
-    return seq.rgbd is not None and bool(cfg.texture.get("enabled", True))
-
-
 def run_pipeline(
     cfg: DictConfig,
     run_dir: Path,
@@ -201,7 +205,7 @@ def run_pipeline(
 
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    _check_fresh(run_dir)
+    _claim(run_dir)
     t0 = time.perf_counter()
     try:
         require_values(cfg)
@@ -225,7 +229,9 @@ def run_pipeline(
             artifacts.write_tum(run_dir / "groundtruth.tum", result.times, seq.ground_truth.poses[: len(result.times)])
         artifacts.write_steps(run_dir, result.steps)
 
-        if texture_enabled(seq, cfg):
+        from slamlab.texture.pipeline import texture_enabled
+
+        if texture_enabled(seq, cfg.texture):
             try:
                 metrics["texture"] = run_texture_stage(seq, result, cfg, run_dir)
             except Exception as exc:  # keep SLAM results; say what went wrong

@@ -25,6 +25,11 @@ def make_cfg(overrides: list[str]):
         return compose(config_name="config", overrides=overrides)
 
 
+def visible_files(folder: Path) -> list[str]:
+    """What a person sees in a run folder (the hidden claim marker aside)."""
+    return sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
+
+
 @pytest.fixture(scope="module")
 def sim_run(sim_cache, tmp_path_factory) -> Path:
     """One short simulated run with texture, shared by the checks below."""
@@ -96,7 +101,15 @@ def test_impossible_values_name_the_key(override, key, tmp_path):
     # the failed run says why, and leaves no artifacts but that
     m = json.loads((tmp_path / "r" / "metrics.json").read_text())
     assert m["status"] == "failed" and key in m["error"]
-    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["metrics.json"]
+    assert visible_files(tmp_path / "r") == ["metrics.json"]
+
+
+def test_a_folder_claimed_by_a_running_run_is_refused(tmp_path):
+    (tmp_path / "r").mkdir()
+    (tmp_path / "r" / ".slamlab-run").touch()  # another process has just started here
+    with pytest.raises(RunDirectoryInUse):
+        run_pipeline(make_cfg(SHORT_SIM), tmp_path / "r", progress="off")
+    assert visible_files(tmp_path / "r") == []
 
 
 def test_a_finished_run_is_never_overwritten(sim_run):
@@ -115,8 +128,7 @@ def test_interrupted_run_leaves_no_half_written_files(sim_cache, tmp_path):
 
     with pytest.raises(KeyboardInterrupt):
         run_pipeline(cfg, tmp_path / "r", progress=interrupt)
-    files = sorted(p.name for p in (tmp_path / "r").iterdir())
-    assert files == ["metrics.json"]
+    assert visible_files(tmp_path / "r") == ["metrics.json"]
     assert json.loads((tmp_path / "r" / "metrics.json").read_text())["status"] == "interrupted"
 
 

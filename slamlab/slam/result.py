@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
 import pandas as pd
 
 from slamlab.frames import GridImage
@@ -42,8 +41,3 @@ class SlamResult:
     runtime_s: float
     fill: str = "odometry"
     extras: dict = field(default_factory=dict)
-
-    @property
-    def occupancy_probability(self) -> np.ndarray:
-        """P(occupied) per cell from the log-odds map."""
-        return 1.0 / (1.0 + np.exp(-self.log_odds.data.astype(np.float64)))
