@@ -118,6 +118,13 @@ def test_cli_combines_sweeps_and_reports_errors(sweep: Path, tmp_path: Path, mon
     (tmp_path / "empty").mkdir()
     assert report_main([str(tmp_path / "empty")]) == 2
     assert "no run directories found" in capsys.readouterr().err
+    # a run's own report.html is never replaced by a comparison page
+    run0 = other / "0"
+    before = (run0 / "metrics.json").read_bytes(), (run0 / "report.html").read_bytes() if (run0 / "report.html").exists() else None
+    assert report_main([str(other), "-o", str(run0)]) == 2
+    assert "is a run directory" in capsys.readouterr().err
+    after = (run0 / "metrics.json").read_bytes(), (run0 / "report.html").read_bytes() if (run0 / "report.html").exists() else None
+    assert after == before
 
 
 def test_report_survives_broken_artifacts(tmp_path: Path) -> None:

@@ -56,6 +56,12 @@ def main(argv: list[str] | None = None) -> int:
         out_dir, filename = args.out.parent, args.out.name
     else:
         out_dir, filename = args.out, REPORT_FILE
+    from slamlab.pipeline import RUN_MARKERS
+
+    if filename == REPORT_FILE and any((out_dir / m).exists() for m in RUN_MARKERS):
+        # a run's own report.html lives there: a comparison page must not replace it
+        print(f"slamlab-report: error: {out_dir} is a run directory; choose another -o", file=sys.stderr)
+        return 2
     t0 = time.perf_counter()
     try:
         if args.run_reports:
