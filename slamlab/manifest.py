@@ -45,7 +45,10 @@ def fingerprint_files(paths: list[str]) -> dict:
         members = sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else [p]
         for q in members:
             digest, how = _file_digest(q)
+            # names without machine paths keep the fingerprint equal across machines
             name = str(q.relative_to(p.parent)) if p.is_dir() else q.name
+            if name in files:  # two inputs of the same name in different folders
+                name = f"{name} ({q.parent})"
             files[name] = {"bytes": q.stat().st_size, "sha256": digest, "hashed": how}
             total.update(name.encode() + b"\0" + digest.encode())
     return {"sha256": total.hexdigest(), "files": files}
