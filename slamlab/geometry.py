@@ -87,3 +87,9 @@ def yaw_to_quaternion(theta: ArrayLike) -> FloatArray:
     th = np.asarray(theta, dtype=np.float64)
     z = np.zeros_like(th)
     return np.stack([z, z, np.sin(th / 2.0), np.cos(th / 2.0)], axis=-1)
+
+
+def body_to_world(x: float, y: float, theta: float, roll: float = 0.0, pitch: float = 0.0, height_m: float = 0.0) -> FloatArray:
+    """4x4 world pose of the body frame, as slamlab.frames defines it:
+    Txyz(x, y, height_m) Rz(theta) Ry(pitch) Rx(roll) (m, rad)."""
+    return trans(x, y, height_m) @ rot_z(theta) @ rot_y(pitch) @ rot_x(roll)

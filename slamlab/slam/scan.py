@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slamlab.frames import ScanFrame
-from slamlab.geometry import FloatArray, rot_x, rot_y, trans
+from slamlab.geometry import FloatArray, body_to_world
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,7 +45,8 @@ def scan_to_points(
     keep = frame.valid & np.isfinite(r) & (r >= min_range_m) & (r <= max_range_m)
     r, a = r[keep], a[keep]
     height = 0.0 if body_height_m is None else float(body_height_m)
-    T = trans(z=height) @ rot_y(frame.pitch) @ rot_x(frame.roll) @ np.asarray(frame.lidar_to_body, dtype=np.float64)
+    # the body at the origin with zero yaw: particles add x, y, theta later, in 2D
+    T = body_to_world(0.0, 0.0, 0.0, frame.roll, frame.pitch, height) @ np.asarray(frame.lidar_to_body, dtype=np.float64)
     p = np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
     # transform of (x, y, 0): only the first two columns of the rotation matter
     pts = p @ T[:3, :2].T + T[:3, 3]

@@ -36,7 +36,7 @@ from slamlab.artifacts import atomic_path
 from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.eval.texture import DetectionCounts, texture_metrics
 from slamlab.frames import GridImage, KinectCalibration, RGBDFrame, Sequence
-from slamlab.geometry import rot_x, rot_y, rot_z, trans
+from slamlab import geometry
 from slamlab.texture.align import sample_colors, unmirror_calibration
 from slamlab.texture.backproject import Backprojector, scaled_intrinsics
 from slamlab.texture.ground import GroundDetector, GroundQuery
@@ -192,7 +192,7 @@ def interpolate_poses(times: np.ndarray, poses: np.ndarray, t_query: np.ndarray 
 def body_to_world(pose: np.ndarray, body_height_m: float, roll: float = 0.0, pitch: float = 0.0) -> np.ndarray:
     """4x4 world pose of the body: Txyz(x, y, body_height_m) Rz(theta) Ry(pitch) Rx(roll)."""
     x, y, th = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
-    return trans(x, y, body_height_m) @ rot_z(th) @ rot_y(pitch) @ rot_x(roll)
+    return geometry.body_to_world(x, y, th, roll, pitch, body_height_m)
 
 
 # ---- config -------------------------------------------------------------------------------

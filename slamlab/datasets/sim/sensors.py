@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamlab import robot
-from slamlab.geometry import FloatArray, rot_x, rot_y, rot_z, trans
+from slamlab import geometry, robot
+from slamlab.geometry import FloatArray
 from slamlab.datasets.sim.raycast import cast_scans
 from slamlab.datasets.sim.trajectory import FINE_DT_S, Motion
 
@@ -19,7 +19,7 @@ LIDAR_MIN_M = 0.1
 
 def body_to_world(x: float, y: float, theta: float, roll: float, pitch: float) -> FloatArray:
     """4x4 body pose in the world: Txyz(x, y, COM height) Rz(theta) Ry(pitch) Rx(roll)."""
-    return trans(x, y, robot.COM_HEIGHT_M) @ rot_z(theta) @ rot_y(pitch) @ rot_x(roll)
+    return geometry.body_to_world(x, y, theta, roll, pitch, robot.COM_HEIGHT_M)
 
 
 def sensor_poses(state: dict[str, FloatArray], sensor: str) -> np.ndarray:
