@@ -9,7 +9,7 @@ from hydra import compose, initialize_config_dir
 
 from slamlab.errors import ConfigError
 from slamlab.frames import ScanFrame, Sequence
-from slamlab.slam.engine import run_slam, validate_config
+from slamlab.slam.engine import ancestral_path, run_slam, validate_config
 from slamlab.slam.matcher import GridMatcher
 from slamlab.slam.weighting import WeightUnderflowWarning
 
@@ -57,6 +57,20 @@ def test_same_seed_same_trajectory_bit_for_bit():
     assert a.log_odds.data.tobytes() == b.log_odds.data.tobytes()
     c = run_slam(seq, _cfg("particles=20", "seed=8", "matcher=likelihood"))
     assert c.trajectory.tobytes() != a.trajectory.tobytes()
+
+
+def test_ancestral_path_follows_parents_not_indices():
+    # 3 steps, 3 particles; pose x = 10 * step + particle index, so the path names its ancestors.
+    hist = np.zeros((3, 3, 3))
+    for k in range(3):
+        hist[k, :, 0] = 10 * k + np.arange(3)
+    parent = np.array([[0, 1, 2],   # step 0 has no parents
+                       [2, 2, 0],   # step 1's particles descend from step 0's 2, 2, 0
+                       [1, 0, 0]])  # step 2's from step 1's 1, 0, 0
+    path = ancestral_path(hist, parent, last=0)
+    # particle 0 of step 2 <- particle 1 of step 1 <- particle 2 of step 0
+    np.testing.assert_array_equal(path[:, 0], [2, 11, 20])
+    np.testing.assert_array_equal(ancestral_path(hist, parent, last=2)[:, 0], [2, 10, 22])
 
 
 def test_smoothed_path_ends_at_the_final_best_particle():

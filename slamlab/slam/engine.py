@@ -32,7 +32,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from slamlab.errors import ConfigError
 from slamlab.frames import Sequence
-from slamlab.geometry import se2_between, se2_compose
+from slamlab.geometry import FloatArray, se2_between, se2_compose
 from slamlab.slam.grid import MapSettings, OccupancyGrid
 from slamlab.slam.matcher import Matcher
 from slamlab.slam.motion import MotionModel
@@ -132,6 +132,21 @@ def validate_config(cfg: DictConfig) -> Components:
     )
 
 
+def ancestral_path(hist_poses: FloatArray, hist_parent: np.ndarray, last: int) -> FloatArray:
+    """The path of particle `last` of the final step back through its ancestors.
+
+    `hist_poses[k]` (n_steps, N, 3) are the particles at step k before resampling;
+    `hist_parent[k, j]` is the index, in step k-1's set, of the particle that particle j
+    of step k descends from. Returns (n_steps, 3)."""
+    n_steps = hist_poses.shape[0]
+    path = np.empty((n_steps, 3))
+    j = int(last)
+    for k in range(n_steps - 1, -1, -1):
+        path[k] = hist_poses[k, j]
+        j = int(hist_parent[k, j])
+    return path
+
+
 def run_slam(
     sequence: Sequence,
     cfg: DictConfig,
@@ -209,14 +224,9 @@ def run_slam(
             progress(k + 1, n_steps)
     runtime = time.perf_counter() - t_loop
 
-    # the final best particle's own path, followed back through its ancestors. `best` indexes
-    # the last step's particles before resampling (the set hist_poses[-1] holds); after a
-    # resample the weights are uniform and would no longer say which particle was best.
-    j = best
-    smooth = np.empty((n_steps, 3))
-    for k in range(n_steps - 1, -1, -1):
-        smooth[k] = hist_poses[k, j]
-        j = int(hist_parent[k, j])
+    # `best` indexes the last step's particles before resampling (the set hist_poses[-1]
+    # holds); after a resample the weights are uniform and no longer say who was best.
+    smooth = ancestral_path(hist_poses, hist_parent, best)
 
     steps = pd.DataFrame(
         {
