@@ -140,3 +140,17 @@ def test_body_to_world_matches_the_course_chain() -> None:
 
     course = trans(x, y, 0.93) @ rot_z(th) @ rot_y(pitch) @ rot_x(roll) @ trans(z=0.33) @ rot_z(ny) @ rot_y(hp) @ trans(z=0.15)
     np.testing.assert_allclose(T, course, atol=1e-12)
+
+
+def test_world_scale_sets_the_building_size():
+    small, big = build_world(0), build_world(0, scale=1.5)
+    span = lambda w: (w.bounds[2] - w.bounds[0], w.bounds[3] - w.bounds[1])  # noqa: E731
+    assert span(big) == pytest.approx(tuple(1.5 * v for v in span(small)))
+    # the route grows with the building and still starts at the origin, inside it
+    assert big.loop_max[0] - big.loop_min[0] == pytest.approx(1.5 * (small.loop_max[0] - small.loop_min[0]))
+    assert big.bounds[0] < 0 < big.bounds[2] and big.bounds[1] < 0 < big.bounds[3]
+    occ = occupancy_grid(big, 0.05)
+    for x, y in [(0, 0), big.loop_min, big.loop_max]:  # the route stays clear of walls
+        r = int((y - occ.origin_xy[1]) / occ.resolution_m)
+        c = int((x - occ.origin_xy[0]) / occ.resolution_m)
+        assert not occ.data[r, c]

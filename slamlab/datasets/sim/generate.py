@@ -56,6 +56,7 @@ class SimParams:
     walk_speed_mps: float = 0.45
     turn_rate_dps: float = 35.0  # turns in place at the corners
     n_clutter: int = 22  # boxes and pillars (about half lower than the lidar)
+    world_scale: float = 1.0  # building size vs the 17 x 13.5 m plan (a lap takes ~78 s x scale)
     n_people: int = 0  # people walking in the corridor (moving cylinders), off by default
     step_freq_hz: float = 1.6  # gait: body pitch at this, roll at half of it
     roll_amp_deg: float = 2.5
@@ -127,7 +128,7 @@ def generate_sequence(folder: str | Path, params: SimParams = SimParams(), calib
     truth_dir.mkdir(exist_ok=True)
     seed = params.seed
     calib = simcalib.sim_calibration(params.kinect_scale, calibration_dir)
-    world = build_world(seed, n_clutter=params.n_clutter, texture_res_m=params.texture_res_m)
+    world = build_world(seed, n_clutter=params.n_clutter, texture_res_m=params.texture_res_m, scale=params.world_scale)
     motion: Motion = simulate_motion(
         seed, params.duration_s, world.loop_min, world.loop_max,
         walk_speed_mps=params.walk_speed_mps, turn_rate_rps=np.deg2rad(params.turn_rate_dps), stand_s=params.stand_s,
@@ -290,6 +291,7 @@ def load_sim(
     walk_speed_mps: float = 0.45,
     turn_rate_dps: float = 35.0,
     n_clutter: int = 22,
+    world_scale: float = 1.0,
     n_people: int = 0,
     step_freq_hz: float = 1.6,
     roll_amp_deg: float = 2.5,
@@ -373,6 +375,7 @@ def validate_params(p: SimParams) -> None:
         ("walk_speed_mps", 0 < p.walk_speed_mps <= 2.0, "must be in (0, 2] m/s"),
         ("turn_rate_dps", 0 < p.turn_rate_dps <= 180, "must be in (0, 180] deg/s"),
         ("n_clutter", p.n_clutter >= 0, "must be >= 0"),
+        ("world_scale", 0.85 <= p.world_scale <= 3.0, "must be in [0.85, 3] (the plan's rooms need room)"),
         ("n_people", p.n_people >= 0, "must be >= 0"),
         ("range_noise_m", p.range_noise_m >= 0, "must be >= 0"),
         ("dropout_fraction", 0 <= p.dropout_fraction < 1, "must be in [0, 1)"),

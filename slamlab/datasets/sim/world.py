@@ -76,15 +76,16 @@ def _overlaps(box: list[float], others: list[list[float]], margin: float) -> boo
     return False
 
 
-def build_world(seed: int, n_clutter: int = 22, texture_res_m: float = 0.02) -> World:
+def build_world(seed: int, n_clutter: int = 22, texture_res_m: float = 0.02, scale: float = 1.0) -> World:
     """Build the seeded floor plan and floor texture.
 
     `n_clutter`: number of clutter boxes/pillars placed in rooms and along corridor walls;
-    `texture_res_m`: floor texture resolution (m per pixel).
+    `texture_res_m`: floor texture resolution (m per pixel); `scale`: the building's size
+    relative to the 17 x 13.5 m plan (>= 0.85; corridors, doors and clutter keep their size).
     """
     rng = np.random.default_rng([seed, 101])
-    W, H = WORLD_SIZE_PLAN
-    (lx0, ly0), (lx1, ly1) = LOOP_MIN, LOOP_MAX
+    W, H = (v * scale for v in WORLD_SIZE_PLAN)
+    (lx0, ly0), (lx1, ly1) = ((v * scale for v in LOOP_MIN), (v * scale for v in LOOP_MAX))
     hw = CORRIDOR_HALF_WIDTH_M
     walls: list[list[float]] = []
     # Outer walls of the building.
@@ -163,7 +164,7 @@ def build_world(seed: int, n_clutter: int = 22, texture_res_m: float = 0.02) -> 
     colors[: len(walls)] = rng.integers(150, 235, size=(len(walls), 3))
     colors[len(walls) :] = rng.integers(20, 220, size=(len(clutter), 3))
 
-    shift = np.array(START_PLAN)
+    shift = np.array(START_PLAN) * scale
     boxes[:, [0, 2]] -= shift[0]
     boxes[:, [1, 3]] -= shift[1]
     floor = floor_texture(rng, W, H, texture_res_m, origin=(-shift[0], -shift[1]))
