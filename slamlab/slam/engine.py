@@ -154,7 +154,8 @@ def run_slam(
 ) -> SlamResult:
     """Run the filter (or dead reckoning, `mode: odometry`) over `sequence`.
 
-    `progress(done_steps, total_steps)` is called after every processed step.
+    `progress(scans_done, scans_total)` is called after every processed step (scans between
+    steps count as done: the progress bar shows scans, the log's unit).
     Returns one pose per scan (the first `steps.max_scans` scans when set)."""
     c = validate_config(cfg)
     scans = sequence.scans if c.max_scans is None else sequence.scans[: c.max_scans]
@@ -221,7 +222,7 @@ def run_slam(
         rows["best_weight"].append(float(w[best]))
         rows["step_time_s"].append(time.perf_counter() - t0)
         if progress is not None:
-            progress(k + 1, n_steps)
+            progress(len(scans) if k == n_steps - 1 else int(si) + 1, len(scans))
     runtime = time.perf_counter() - t_loop
 
     # `best` indexes the last step's particles before resampling (the set hist_poses[-1]
