@@ -15,6 +15,8 @@ Adding a matcher: subclass `Matcher`, implement `match`, add `conf/matcher/NAME.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import math
 
 import numba
@@ -173,7 +175,7 @@ def offset_grid(xy_half_width_m: float, xy_step_m: float, yaw_half_width_rad: fl
     return np.ascontiguousarray(g[np.argsort(key, kind="stable")])
 
 
-class Matcher:
+class Matcher(ABC):
     """Interface: `match(grid, poses (N,3), scan) -> (poses (N,3), scores (N,))`.
     `field_sigma_m` / `field_radius_m` > 0 ask the grid to keep a likelihood field."""
 
@@ -181,8 +183,9 @@ class Matcher:
     field_radius_m: float = 0.0
     move_to_best: bool = True
 
+    @abstractmethod
     def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
-        raise NotImplementedError
+        ...
 
     def _finish(self, poses: FloatArray, best: FloatArray, scores: FloatArray) -> tuple[FloatArray, FloatArray]:
         if not self.move_to_best:

@@ -10,6 +10,8 @@ Adding a model: subclass `MotionModel`, implement `sample`, add `conf/motion/NAM
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import numpy as np
 
 from slamlab.geometry import FloatArray, se2_compose, wrap_angle
@@ -18,11 +20,12 @@ from slamlab.slam._keys import require_nonnegative, require_positive
 GROUP = "motion"
 
 
-class MotionModel:
+class MotionModel(ABC):
     """Interface: `sample(poses (N,3), increment (3,), rng) -> new poses (N,3)`."""
 
+    @abstractmethod
     def sample(self, poses: FloatArray, increment: FloatArray, rng: np.random.Generator) -> FloatArray:
-        raise NotImplementedError
+        ...
 
 
 class CourseMotion(MotionModel):

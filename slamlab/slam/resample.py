@@ -9,6 +9,8 @@ Adding a scheme: subclass `Resampler`, implement `indices`, add `conf/resampler/
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import numpy as np
 
 from slamlab.geometry import FloatArray
@@ -18,7 +20,7 @@ from slamlab.slam.weighting import effective_sample_size
 GROUP = "resampler"
 
 
-class Resampler:
+class Resampler(ABC):
     """Interface: `indices(weights (N,), rng) -> int64 (N,)`, plus the N_eff trigger."""
 
     def __init__(self, threshold: float = 0.5) -> None:
@@ -28,8 +30,9 @@ class Resampler:
         """True when N_eff < threshold * N."""
         return effective_sample_size(weights) < self.threshold * len(weights)
 
+    @abstractmethod
     def indices(self, weights: FloatArray, rng: np.random.Generator) -> np.ndarray:
-        raise NotImplementedError
+        ...
 
 
 def _search(cdf: FloatArray, u: FloatArray) -> np.ndarray:

@@ -13,6 +13,8 @@ Adding a scheme: subclass `Weighting`, implement `update`, add `conf/weighting/N
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import logging
 import warnings
 
@@ -43,13 +45,14 @@ def effective_sample_size(weights: FloatArray) -> float:
     return float(1.0 / np.sum(w * w))
 
 
-class Weighting:
+class Weighting(ABC):
     """Interface: `update(log_weights (N,), scores (N,)) -> normalised log-weights (N,)`."""
 
     underflows: int = 0
 
+    @abstractmethod
     def update(self, log_weights: FloatArray, scores: FloatArray) -> FloatArray:
-        raise NotImplementedError
+        ...
 
 
 class LinearWeighting(Weighting):

@@ -18,6 +18,8 @@ World frame: z up, z = 0 on the floor (the body origin is `body_height_m` above 
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import numpy as np
 
 from slamlab.frames import CameraIntrinsics
@@ -74,13 +76,14 @@ class GroundQuery:
         return p.depth_m * (r[0] * p.ray_x + r[1] * p.ray_y + r[2]) + np.float32(self.T_world_cam[2, 3])
 
 
-class GroundDetector:
+class GroundDetector(ABC):
     """Base class: `detector(query) -> (M,) bool`, True where the point is floor."""
 
     name: str = "ground"
 
+    @abstractmethod
     def __call__(self, query: GroundQuery) -> np.ndarray:  # pragma: no cover - interface
-        raise NotImplementedError
+        ...
 
 
 class ThresholdGround(GroundDetector):
