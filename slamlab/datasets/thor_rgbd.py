@@ -30,6 +30,7 @@ from typing import BinaryIO
 import numpy as np
 
 from slamlab import robot
+from slamlab.datasets.thor import nearest_index
 from slamlab.errors import DataError
 from slamlab.frames import RGBDFrame
 
@@ -352,13 +353,6 @@ def _rgb_files(root: Path, sequence: int) -> list[Path]:
     return [found[j] for j in js]
 
 
-def _nearest(sorted_t: np.ndarray, t: np.ndarray) -> np.ndarray:
-    j = np.clip(np.searchsorted(sorted_t, t), 1, max(sorted_t.size - 1, 1))
-    if sorted_t.size == 1:
-        return np.zeros(t.shape, dtype=int)
-    return np.where(np.abs(t - sorted_t[j - 1]) <= np.abs(sorted_t[j] - t), j - 1, j)
-
-
 class RGBDStream:
     """A zero-argument callable returning a fresh iterator of RGBDFrames (file order).
 
@@ -454,7 +448,7 @@ def open_rgbd(root: str | Path, sequence: int, max_pair_gap_s: float = MAX_PAIR_
     rgb = _index_files(rgb_paths, "RGB") if rgb_paths else None
     rgb_index = np.full(depth.t.size, -1, dtype=int)
     if rgb is not None:
-        near = _nearest(rgb.t, depth.t)
+        near = nearest_index(rgb.t, depth.t)
         ok = np.abs(rgb.t[near] - depth.t) <= max_pair_gap_s
         if not ok.any():
             raise DataError(
