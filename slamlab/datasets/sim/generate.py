@@ -285,44 +285,24 @@ def sim_folder(params: SimParams, calibration_dir: str | Path | None = None, cac
 
 
 def load_sim(
-    seed: int = 0,
-    duration_s: float = 85.0,
-    stand_s: float = 2.5,
-    walk_speed_mps: float = 0.45,
-    turn_rate_dps: float = 35.0,
-    n_clutter: int = 22,
-    world_scale: float = 1.0,
-    n_people: int = 0,
-    step_freq_hz: float = 1.6,
-    roll_amp_deg: float = 2.5,
-    pitch_amp_deg: float = 1.5,
-    range_noise_m: float = 0.01,
-    dropout_fraction: float = 0.005,
-    odom_scale_bias: float = 0.025,
-    odom_yaw_drift_deg_per_min: float = 2.0,
-    odom_yaw_bias_deg_per_m: float = 0.0,
-    odom_noise_m_per_sqrt_s: float = 0.005,
-    odom_noise_deg_per_sqrt_s: float = 0.3,
-    imu_noise_deg: float = 0.2,
-    rgbd: bool = True,
-    rgb: bool = True,
-    kinect_rate_hz: float = 2.0,
-    kinect_scale: float = 0.25,
-    depth_noise_mm: float = 2.0,
-    label_every: int = 5,
-    texture_res_m: float = 0.02,
-    occupancy_res_m: float = 0.05,
     calibration_dir: str | None = None,
     cache_dir: str | None = None,
     regenerate: bool = False,
+    **knobs: object,
 ) -> Sequence:
-    """The simulated THOR-OP sequence for these parameters (see `SimParams` for units), with
-    `ground_truth` attached. Generated once into the cache (`cache_dir`, default
-    `paths.cache_dir()/sim`; atomic), then read back through `load_thor` like real data.
-    `calibration_dir`: a real `cameraParam/` folder to take the Kinect numbers from (default:
-    the built-in copy of the THOR calibration). `regenerate`: rebuild even if cached."""
-    given = dict(locals())
-    params = SimParams(**{f.name: _typed(f.name, f.type, given[f.name]) for f in dataclasses.fields(SimParams)})
+    """The simulated THOR-OP sequence for these `knobs` (any `SimParams` field, e.g.
+    `seed=3, duration_s=60`; see `SimParams` for units and defaults), with `ground_truth`
+    attached. Generated once into the cache (`cache_dir`, default `paths.cache_dir()/sim`;
+    atomic), then read back through `load_thor` like real data. `calibration_dir`: a real
+    `cameraParam/` folder to take the Kinect numbers from (default: the built-in copy of the
+    THOR calibration). `regenerate`: rebuild even if cached."""
+    from slamlab.errors import ConfigError
+
+    fields = {f.name: f for f in dataclasses.fields(SimParams)}
+    unknown = sorted(set(knobs) - set(fields))
+    if unknown:
+        raise ConfigError(f"dataset.{unknown[0]}", f"is not a simulator setting (known: {', '.join(fields)})")
+    params = SimParams(**{k: _typed(k, fields[k].type, v) for k, v in knobs.items()})
     validate_params(params)
     folder = sim_folder(params, calibration_dir, cache_dir)
     if regenerate or not folder.is_dir():
