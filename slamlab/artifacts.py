@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -16,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from slamlab.errors import DataError
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray, wrap_angle, yaw_to_quaternion
 
@@ -99,10 +101,20 @@ def write_tum(path: Path, times: FloatArray, poses: FloatArray) -> None:
 
 
 def read_tum(path: Path) -> tuple[FloatArray, FloatArray]:
-    """Read a TUM file written by `write_tum`: (times (N,), poses (N, 3) x, y, yaw)."""
-    table = np.loadtxt(path, comments="#", ndmin=2)
-    qz, qw = table[:, 6], table[:, 7]
-    yaw = 2.0 * np.arctan2(qz, qw)
+    """Read a planar TUM file: (times (N,), poses (N, 3) x, y, yaw), yaw from the
+    quaternion's rotation about z. A file that is not TUM raises DataError naming it."""
+    try:
+        with warnings.catch_warnings():  # an empty file is an empty trajectory, not a warning
+            warnings.simplefilter("ignore", UserWarning)
+            table = np.loadtxt(path, comments="#", ndmin=2, dtype=np.float64)
+    except (OSError, ValueError) as exc:
+        raise DataError(path, f"cannot read TUM trajectory ({exc})") from None
+    if table.size == 0:
+        return np.zeros(0), np.zeros((0, 3))
+    if table.shape[1] != 8:
+        raise DataError(path, f"expected 8 columns 'timestamp x y z qx qy qz qw', got {table.shape[1]}")
+    qx, qy, qz, qw = table[:, 4], table[:, 5], table[:, 6], table[:, 7]
+    yaw = np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
     return table[:, 0], np.column_stack([table[:, 1], table[:, 2], wrap_angle(yaw)])
 
 

@@ -17,6 +17,8 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from slamlab.artifacts import write_tum
+
 BASE_CONFIG: dict[str, Any] = {
     "dataset": {"name": "sim", "duration_s": 10.0, "seed": 0},
     "motion": {"name": "course", "sigma_xy_m": 0.02, "sigma_theta_rad": 0.01},
@@ -41,13 +43,6 @@ def _set_dotted(cfg: dict[str, Any], key: str, value: Any) -> None:
     for p in parts[:-1]:
         node = node.setdefault(p, {})
     node[parts[-1]] = value
-
-
-def _write_tum(path: Path, t: np.ndarray, poses: np.ndarray) -> None:
-    half = poses[:, 2] / 2.0
-    arr = np.column_stack([t, poses[:, 0], poses[:, 1], np.zeros_like(t), np.zeros_like(t), np.zeros_like(t),
-                           np.sin(half), np.cos(half)])
-    np.savetxt(path, arr, fmt="%.6f", header="timestamp x y z qx qy qz qw")
 
 
 def _room_map(res: float = 0.1) -> tuple[np.ndarray, tuple[float, float]]:
@@ -125,11 +120,11 @@ def make_run_dir(
     noise = 0.5 / np.sqrt(particles)
     slam = gt.copy()
     slam[:, :2] += rng.normal(0.0, noise, size=(n, 2))
-    _write_tum(run_dir / "trajectory.tum", t, slam)
-    _write_tum(run_dir / "trajectory_causal.tum", t, slam)
-    _write_tum(run_dir / "odometry.tum", t, odo)
+    write_tum(run_dir / "trajectory.tum", t, slam)
+    write_tum(run_dir / "trajectory_causal.tum", t, slam)
+    write_tum(run_dir / "odometry.tum", t, odo)
     if groundtruth:
-        _write_tum(run_dir / "groundtruth.tum", t, gt)
+        write_tum(run_dir / "groundtruth.tum", t, gt)
     data, origin = _room_map()
     np.savez_compressed(run_dir / "map_logodds.npz", data=data, resolution_m=np.float64(0.1),
                         origin_xy=np.array(origin))

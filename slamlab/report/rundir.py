@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from slamlab import artifacts
 from slamlab.errors import SlamlabError
 
 # File names are a contract (docs/RUN_DIRECTORY.md); keep them in one place.
@@ -167,21 +168,14 @@ class RunDir:
 
 # --- file readers ------------------------------------------------------------------------
 def read_tum(path: Path) -> Trajectory | None:
-    """Read `timestamp x y z qx qy qz qw` lines ('#' comments allowed); None if the file is
-    missing or holds no poses. Yaw is taken from the quaternion (planar runs: rotation about z)."""
+    """A run's TUM trajectory (slamlab.artifacts.read_tum); None if the file is missing or
+    holds no poses."""
     if not path.is_file():
         return None
-    try:
-        arr = np.loadtxt(path, comments="#", ndmin=2, dtype=np.float64)
-    except ValueError as exc:
-        raise SlamlabError(f"{path}: not a TUM trajectory ({exc})") from exc
-    if arr.size == 0:
+    t, poses = artifacts.read_tum(path)
+    if t.size == 0:
         return None
-    if arr.shape[1] != 8:
-        raise SlamlabError(f"{path}: expected 8 columns 'timestamp x y z qx qy qz qw', got {arr.shape[1]}")
-    qx, qy, qz, qw = arr[:, 4], arr[:, 5], arr[:, 6], arr[:, 7]
-    yaw = np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-    return Trajectory(t=arr[:, 0], xy=arr[:, 1:3].copy(), yaw=yaw)
+    return Trajectory(t=t, xy=poses[:, :2].copy(), yaw=poses[:, 2])
 
 
 def read_logodds(path: Path) -> LogOddsMap | None:

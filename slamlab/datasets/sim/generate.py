@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from slamlab import robot
+from slamlab.artifacts import write_tum
 from slamlab.datasets.sim import calib as simcalib
 from slamlab.datasets.sim import truth as simtruth
 from slamlab.datasets.sim.kinect import pixel_rays, render_depth, render_rgb, rgb_to_ir
@@ -38,7 +39,7 @@ from slamlab.geometry import wrap_angle
 
 # Bump whenever the generator's output changes for the same parameters: it is part of the
 # cache key, so stale cached sequences are never reused.
-SIM_VERSION = "2"
+SIM_VERSION = "3"  # 3: truth trajectory written by slamlab.artifacts.write_tum
 T0_UNIX_S = 1426800000.0  # March 2015, like the course logs
 LIDAR_HZ = 40.0
 JOINT_HZ = 100.0
@@ -206,7 +207,7 @@ def generate_sequence(folder: str | Path, params: SimParams = SimParams(), calib
         simcalib.write_camera_params(folder / "cameraParam", calib)
 
     # ---- ground truth ----
-    simtruth.write_tum(truth_dir / simtruth.TRAJECTORY_FILE, T0_UNIX_S + t_lidar, np.column_stack([s_lidar["pose"][:, :2], wrap_angle(s_lidar["pose"][:, 2])]))
+    write_tum(truth_dir / simtruth.TRAJECTORY_FILE, T0_UNIX_S + t_lidar, np.column_stack([s_lidar["pose"][:, :2], wrap_angle(s_lidar["pose"][:, 2])]))
     simtruth.write_grid_png(truth_dir, simtruth.OCCUPANCY_FILE, occupancy_grid(world, params.occupancy_res_m))
     simtruth.write_grid_png(truth_dir, simtruth.TEXTURE_FILE, world.floor)
     if labels:

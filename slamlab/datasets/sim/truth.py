@@ -27,7 +27,7 @@ from PIL import Image  # Pillow: a matplotlib dependency
 
 from slamlab.errors import DataError
 from slamlab.frames import GridImage, GroundTruth
-from slamlab.geometry import wrap_angle, yaw_to_quaternion
+from slamlab.artifacts import read_tum
 
 TRUTH_DIR = "truth"
 TRAJECTORY_FILE = "trajectory.tum"
@@ -37,27 +37,6 @@ LABELS_FILE = "ground_labels.npz"
 STATES_FILE = "body_states.npz"
 JOINT_STATES_FILE = "body_states_joint.npz"
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
-
-
-def write_tum(path: Path, t: np.ndarray, pose: np.ndarray) -> None:
-    """Planar poses (N, 3) at times t (s) as TUM lines `t x y z qx qy qz qw`."""
-    q = yaw_to_quaternion(pose[:, 2])
-    with path.open("w") as f:
-        f.write("# timestamp x y z qx qy qz qw  (slamlab sim ground truth: body origin, planar)\n")
-        for ti, p, qi in zip(t, pose, q):
-            f.write(f"{ti:.6f} {p[0]:.6f} {p[1]:.6f} 0.000000 {qi[0]:.9f} {qi[1]:.9f} {qi[2]:.9f} {qi[3]:.9f}\n")
-
-
-def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(t (N,), pose (N, 3)) from a planar TUM file (yaw from the quaternion)."""
-    try:
-        a = np.loadtxt(path, comments="#", ndmin=2)
-    except (OSError, ValueError) as exc:
-        raise DataError(path, f"cannot read TUM trajectory ({exc})") from None
-    if a.shape[1] != 8:
-        raise DataError(path, f"expected 8 columns (t x y z qx qy qz qw), got {a.shape[1]}")
-    yaw = wrap_angle(2.0 * np.arctan2(a[:, 6], a[:, 7]))
-    return a[:, 0], np.stack([a[:, 1], a[:, 2], yaw], axis=1)
 
 
 def _yaml(path: Path, image: str, grid: GridImage, extra: str = "") -> None:
@@ -125,7 +104,7 @@ def load_ground_truth(root: str | Path) -> GroundTruth:
     folder = Path(root) / TRUTH_DIR
     if not folder.is_dir():
         raise DataError(folder, "simulated ground truth folder is missing")
-    _, poses = read_tum(folder / TRAJECTORY_FILE)
+    _, poses = read_tum(folder / TRAJECTORY_FILE)  # slamlab.artifacts
     occ = read_grid_png(folder, OCCUPANCY_FILE, as_bool=True)
     tex = read_grid_png(folder, TEXTURE_FILE, as_bool=False)
     labels: dict[int, np.ndarray] = {}
