@@ -105,6 +105,7 @@ def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> dict:
         "status": "ok",
         "dataset": seq.name,
         "mode": str(cfg.mode),
+        "filter": str(result.extras.get("filter", "course")),
         "scans": len(result.times),
         "processed_steps": int(len(steps)),
         "particles": int(result.particles),
@@ -119,6 +120,8 @@ def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> dict:
         "trajectory_fill": result.fill,
         # linear weighting: steps where every weight underflowed and uniform weights took over
         "weighting_underflows": int(result.extras.get("weighting_underflows", 0)),
+        # MB held by the map(s): shared tiles counted once (rbpf); at the end and at peak
+        "map_memory": {k: v for k, v in result.extras.items() if k.startswith("map_")},
     }
 
 

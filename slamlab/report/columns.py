@@ -41,6 +41,8 @@ METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("scans_per_s", "scans/s", "max"),
     MetricSpec("realtime_factor", "× real time", "max"),
     MetricSpec("peak_memory_mb", "peak memory (MB)", "min"),
+    MetricSpec("map_memory.map_mb", "map MB (end)", "min"),
+    MetricSpec("map_memory.map_peak_mb", "map MB (peak)", "min", table=False),
     MetricSpec("resample_count", "resamples", None),
     MetricSpec("neff_mean", "N_eff mean", None),
     MetricSpec("neff_min", "N_eff min", None),

@@ -72,6 +72,8 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
     """A handful of headline numbers, the ones people compare first."""
     m = run.metrics
     out: list[tuple[str, str]] = []
+    if "filter" in m:
+        out.append(("filter", f"{m['filter']}, {m.get('particles', '?')} particles"))
     traj = m.get("trajectory") if isinstance(m.get("trajectory"), dict) else {}
     if "rmse_m" in traj:
         out.append(("ATE RMSE (m)", fmt_number(traj["rmse_m"])))
@@ -85,6 +87,9 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
                        ("resample_count", "resamples"), ("neff_mean", "mean N_eff")):
         if key in m:
             out.append((label, fmt_number(m[key])))
+    mem = m.get("map_memory") if isinstance(m.get("map_memory"), dict) else {}
+    if "map_mb" in mem:
+        out.append(("map MB (end / peak)", f"{fmt_number(mem['map_mb'])} / {fmt_number(mem.get('map_peak_mb', float('nan')))}"))
     return out
 
 

@@ -1,21 +1,24 @@
-"""The particle-filter SLAM loop: predict, match + weigh, map from the best, resample.
+"""The particle-filter SLAM loop: predict, match + weigh, map, resample.
 
     run_slam(sequence, cfg) -> SlamResult
 
 Per processed step (see `steps.select_steps`):
 1. predict: every particle moves by the odometry increment since the last step (+ noise,
    `motion/`);
-2. update: each particle's scan is matched against the shared map (`matcher/`), optionally
+2. update: each particle's scan is matched against the map (`matcher/`), optionally
    moving the particle to its best offset; the match score updates its weight
    (`weighting/`);
-3. map: the scan of the highest-weight particle is ray-cast into the log-odds grid (`map/`);
-4. resample (`resampler/`) when N_eff = 1 / sum(w^2) < threshold * N.
+3. map (`map/`, `filter/`): `course` ray-casts the highest-weight particle's scan into one
+   shared log-odds grid; `rbpf` ray-casts every particle's scan into its own map;
+4. resample (`resampler/`) when N_eff = 1 / sum(w^2) < threshold * N (under `rbpf` the
+   children share their parent's map tiles until they write).
 Each particle's pose per step and its parent index are kept, so the final best particle's
 own path (its ancestry) is the smoothed trajectory. `mode: odometry` skips 1, 2 and 4:
 the map is built along the raw odometry (dead reckoning, for comparison).
 
-One `numpy.random.Generator(PCG64(seed))` drives all randomness and the numba kernels run
-serial loops, so the same config and seed give a bit-identical trajectory.
+One `numpy.random.Generator(PCG64(seed))` drives all randomness; the numba kernels either
+run serial loops or (per-particle matching of `rbpf`) independent per-particle iterations,
+so the same config and seed give a bit-identical trajectory whatever the thread count.
 """
 
 from __future__ import annotations
@@ -33,12 +36,13 @@ from omegaconf import DictConfig, OmegaConf
 from slamlab.errors import ConfigError
 from slamlab.frames import Sequence
 from slamlab.geometry import FloatArray, se2_between, se2_compose
-from slamlab.slam.grid import MapSettings, OccupancyGrid
+from slamlab.slam.filters import FilterKind, SharedMapFilter
+from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import Matcher
 from slamlab.slam.motion import MotionModel
 from slamlab.slam.resample import Resampler
 from slamlab.slam.result import SlamResult
-from slamlab.slam.scan import points_to_world, scan_to_points
+from slamlab.slam.scan import scan_to_points
 from slamlab.slam.steps import fill_between_steps, select_steps
 from slamlab.slam.weighting import Weighting, effective_sample_size
 
@@ -64,6 +68,7 @@ class Components:
     resampler: Resampler
     matcher: Matcher
     map: MapSettings
+    filter: FilterKind
 
 
 def build_component(cfg: DictConfig, group: str, base: type) -> object:
@@ -129,6 +134,8 @@ def validate_config(cfg: DictConfig) -> Components:
         resampler=build_component(cfg, "resampler", Resampler),  # type: ignore[arg-type]
         matcher=build_component(cfg, "matcher", Matcher),  # type: ignore[arg-type]
         map=build_component(cfg, "map", MapSettings),  # type: ignore[arg-type]
+        # configs saved before the filter group existed ran the course filter
+        filter=build_component(cfg, "filter", FilterKind) if OmegaConf.select(cfg, "filter") is not None else SharedMapFilter(),  # type: ignore[arg-type]
     )
 
 
@@ -172,7 +179,7 @@ def run_slam(
     min_r = ms.min_range_m if ms.min_range_m is not None else sequence.min_range_m
     max_r = ms.max_range_m if ms.max_range_m is not None else sequence.max_range_m
     start = odom[step_scans[0]].copy()
-    grid = OccupancyGrid(ms, (start[0], start[1]), c.matcher.field_sigma_m if slam else 0.0, c.matcher.field_radius_m)
+    maps = c.filter.maps(ms, n, (start[0], start[1]), c.matcher if slam else None)
     rng = np.random.Generator(np.random.PCG64(c.seed))
 
     poses = np.tile(start, (n, 1))
@@ -193,7 +200,7 @@ def run_slam(
             if slam:
                 poses = c.motion.sample(poses, inc, rng)
                 if len(pts.xy):
-                    poses, scores = c.matcher.match(grid, poses, pts)
+                    poses, scores = maps.match(c.matcher, poses, pts)
                     logw = c.weighting.update(logw, scores)
             else:
                 poses = se2_compose(poses, inc)
@@ -202,15 +209,15 @@ def run_slam(
         hist_poses[k] = poses
         hist_parent[k] = parent
         causal[k] = poses[best]
-        # the map follows the best particle: lidar origin and points in the world
-        bp = poses[best]
-        sensor = points_to_world(pts.origin.reshape(1, 2), bp)[0]
-        grid.insert(sensor, points_to_world(pts.xy, bp))
+        maps.update(poses, pts, best)
+        if k == n_steps - 1:
+            final_map = maps.image(best)  # before a resample renumbers the particles' maps
         neff = effective_sample_size(w)
         resampled = False
         if slam and n > 1 and c.resampler.should_resample(w):
             idx = c.resampler.indices(w, rng)
             poses = poses[idx]
+            maps.resample(idx)
             parent = idx.astype(np.int32)
             logw = np.full(n, -np.log(n))
             resampled = True
@@ -245,7 +252,7 @@ def run_slam(
         trajectory=fill_between_steps(step_scans, smooth, odom),
         causal=fill_between_steps(step_scans, causal, odom),
         odometry=se2_compose(start, se2_between(odom[step_scans[0]], odom)),
-        log_odds=grid.to_image(),
+        log_odds=final_map,
         steps=steps,
         particles=n,
         resample_count=resample_count,
@@ -258,6 +265,7 @@ def run_slam(
             "weighting_underflows": underflows,
             "neff_mean": float(np.mean(rows["neff"])),
             "neff_min": float(np.min(rows["neff"])),
-            "map_grow_count": grid.grow_count,
+            "filter": c.filter.name,
+            **maps.memory(),
         },
     )

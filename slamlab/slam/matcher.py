@@ -26,6 +26,8 @@ from slamlab.geometry import FloatArray, wrap_angle
 from slamlab.slam._keys import require_int, require_nonnegative, require_positive
 from slamlab.slam.grid import OccupancyGrid
 from slamlab.slam.scan import ScanPoints
+from slamlab.slam.tiled_match import tiled_field_search, tiled_grid_search
+from slamlab.slam.tiles import TiledMaps
 
 GROUP = "matcher"
 
@@ -176,8 +178,10 @@ def offset_grid(xy_half_width_m: float, xy_step_m: float, yaw_half_width_rad: fl
 
 
 class Matcher(ABC):
-    """Interface: `match(grid, poses (N,3), scan) -> (poses (N,3), scores (N,))`.
-    `field_sigma_m` / `field_radius_m` > 0 ask the grid to keep a likelihood field."""
+    """Interface: `match(grid, poses (N,3), scan) -> (poses (N,3), scores (N,))` against one
+    shared map, and `match_each(maps, poses, scan)` where particle i matches against its own
+    map i of a `TiledMaps` (the RBPF). `field_sigma_m` / `field_radius_m` > 0 ask the map to
+    keep a likelihood field."""
 
     field_sigma_m: float = 0.0
     field_radius_m: float = 0.0
@@ -185,6 +189,10 @@ class Matcher(ABC):
 
     @abstractmethod
     def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
+        ...
+
+    @abstractmethod
+    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
         ...
 
     def _finish(self, poses: FloatArray, best: FloatArray, scores: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -225,6 +233,16 @@ class GridMatcher(Matcher):
         scores = np.empty(len(poses))
         grid_search_hits(
             grid.log_odds, np.float32(grid.s.occupied_threshold), grid.origin[0], grid.origin[1], 1.0 / grid.res,
+            np.ascontiguousarray(poses), pts, self.offsets, best, scores,
+        )
+        return self._finish(poses, best, scores)
+
+    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
+        pts = np.ascontiguousarray(scan.xy[:: self.beam_step])
+        best = np.empty_like(poses)
+        scores = np.empty(len(poses))
+        tiled_grid_search(
+            maps.pool_lo, maps.table, np.float32(maps.s.occupied_threshold), maps.origin[0], maps.origin[1], 1.0 / maps.res,
             np.ascontiguousarray(poses), pts, self.offsets, best, scores,
         )
         return self._finish(poses, best, scores)
@@ -281,6 +299,19 @@ class LikelihoodFieldMatcher(Matcher):
         scores = np.empty(len(poses))
         field_search(
             grid.field, grid.origin[0], grid.origin[1], 1.0 / grid.res, np.ascontiguousarray(poses), coarse, fine,
+            self.offsets, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
+            self.kxy, self.kyaw, best, scores,
+        )
+        return self._finish(poses, best, scores)
+
+    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
+        assert maps.has_field, "maps built without a likelihood field"
+        coarse = np.ascontiguousarray(scan.xy[:: self.coarse_beam_step])
+        fine = np.ascontiguousarray(scan.xy[:: self.beam_step])
+        best = np.empty_like(poses)
+        scores = np.empty(len(poses))
+        tiled_field_search(
+            maps.pool_f, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, np.ascontiguousarray(poses), coarse, fine,
             self.offsets, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
             self.kxy, self.kyaw, best, scores,
         )

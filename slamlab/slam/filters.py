@@ -1,0 +1,157 @@
+"""Where the particles' map lives: the `filter/` config group.
+
+- `course` (`SharedMapFilter`): the course's filter. All particles match against one shared
+  map, built from the highest-weight particle's pose at every step. Fast and precise while
+  tracking holds, but no particle carries an alternative map, so a slipped match corrupts
+  the only map and loops close only if tracking never slipped.
+- `rbpf` (`RaoBlackwellFilter`): a Rao-Blackwellised particle filter in the GMapping sense.
+  Every particle carries its own occupancy map (and likelihood field) in copy-on-write tiles
+  (`tiles.TiledMaps`), updated with its own pose; each particle is matched against its own
+  map (the scan-matched proposal), and resampling hands a child its parent's map by sharing
+  tiles. The final map is the best particle's.
+
+Both present the engine the same small interface (`ParticleMaps`): match, update, resample,
+the final image and memory figures.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from slamlab.frames import GridImage
+from slamlab.geometry import FloatArray
+from slamlab.slam.grid import MapSettings, OccupancyGrid
+from slamlab.slam.matcher import Matcher
+from slamlab.slam.scan import ScanPoints, points_to_world
+from slamlab.slam.tiles import TiledMaps
+
+
+class ParticleMaps(ABC):
+    """The map(s) of N particles, as the engine sees them."""
+
+    @abstractmethod
+    def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
+        """Scan-match every particle; returns (poses (N, 3), scores (N,))."""
+
+    @abstractmethod
+    def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
+        """Add the scan to the map(s), seen from `poses` (N, 3); `best` is the top particle."""
+
+    @abstractmethod
+    def resample(self, idx: np.ndarray) -> None:
+        """Particle j continues old particle idx[j]."""
+
+    @abstractmethod
+    def image(self, best: int) -> GridImage:
+        """The final log-odds map (float32), of particle `best`."""
+
+    @abstractmethod
+    def memory(self) -> dict:
+        """MB held by the maps now and at peak, and how (tiles, cells)."""
+
+
+class SharedMap(ParticleMaps):
+    """One log-odds grid for all particles, updated from the best one (the course filter)."""
+
+    def __init__(self, settings: MapSettings, start_xy: tuple[float, float], matcher: Matcher | None) -> None:
+        sigma = matcher.field_sigma_m if matcher is not None else 0.0
+        radius = matcher.field_radius_m if matcher is not None else 0.0
+        self.grid = OccupancyGrid(settings, start_xy, sigma, radius)
+        self.peak_mb = 0.0
+
+    def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
+        return matcher.match(self.grid, poses, scan)
+
+    def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
+        bp = poses[best]
+        sensor = points_to_world(scan.origin.reshape(1, 2), bp)[0]
+        self.grid.insert(sensor, points_to_world(scan.xy, bp))
+        self.peak_mb = max(self.peak_mb, self._mb())
+
+    def resample(self, idx: np.ndarray) -> None:
+        pass  # the one map belongs to no particle
+
+    def image(self, best: int) -> GridImage:
+        return self.grid.to_image()
+
+    def _mb(self) -> float:
+        g = self.grid
+        return (g.log_odds.nbytes + (g.field.nbytes if g.field is not None else 0)) / 1e6
+
+    def memory(self) -> dict:
+        H, W = self.grid.shape
+        return {"map_mb": self._mb(), "map_peak_mb": self.peak_mb, "map_cells": int(H * W), "map_grow_count": self.grid.grow_count}
+
+
+class PerParticleMaps(ParticleMaps):
+    """A map per particle in shared copy-on-write tiles (the RBPF)."""
+
+    def __init__(self, settings: MapSettings, n: int, start_xy: tuple[float, float], matcher: Matcher | None) -> None:
+        sigma = matcher.field_sigma_m if matcher is not None else 0.0
+        radius = matcher.field_radius_m if matcher is not None else 0.0
+        self.maps = TiledMaps(settings, n, start_xy, sigma, radius)
+        self._identical = True  # all particles hold the same map (at the start)
+        self.peak_mb = 0.0
+
+    def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
+        return matcher.match_each(self.maps, poses, scan)
+
+    def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
+        if len(scan.xy) == 0:
+            return
+        if self._identical and np.all(poses == poses[0]):
+            # same map, same pose: insert once and share it (the first step)
+            self.maps.insert_scan(poses, scan.xy, scan.origin, which=np.array([0]))
+            self.maps.share_all_from(0)
+        else:
+            self.maps.insert_scan(poses, scan.xy, scan.origin)
+        self._identical = False
+        self.peak_mb = max(self.peak_mb, self.maps.memory_mb())
+
+    def resample(self, idx: np.ndarray) -> None:
+        self.maps.resample(idx)
+
+    def image(self, best: int) -> GridImage:
+        return self.maps.to_image(best)
+
+    def memory(self) -> dict:
+        m = self.maps
+        return {
+            "map_mb": m.memory_mb(),
+            "map_peak_mb": self.peak_mb,
+            "map_tiles": m.tiles_in_use,
+            "map_tiles_peak": m.peak_tiles,
+            "map_tiles_copied": m.tiles_copied,
+            "map_table_tiles": int(m.table.shape[1] * m.table.shape[2]),  # per particle, incl. empty
+            "map_grow_count": m.grow_count,
+        }
+
+
+class FilterKind(ABC):
+    """A `filter/` choice: builds the particles' maps for a run."""
+
+    name: str = ""
+
+    @abstractmethod
+    def maps(self, settings: MapSettings, n: int, start_xy: tuple[float, float], matcher: Matcher | None) -> ParticleMaps:
+        ...
+
+
+class SharedMapFilter(FilterKind):
+    """`filter=course`: one map from the best particle (see module doc)."""
+
+    name = "course"
+
+    def maps(self, settings: MapSettings, n: int, start_xy: tuple[float, float], matcher: Matcher | None) -> ParticleMaps:
+        return SharedMap(settings, start_xy, matcher)
+
+
+class RaoBlackwellFilter(FilterKind):
+    """`filter=rbpf`: a map per particle in copy-on-write tiles (see module doc)."""
+
+    name = "rbpf"
+
+    def maps(self, settings: MapSettings, n: int, start_xy: tuple[float, float], matcher: Matcher | None) -> ParticleMaps:
+        return PerParticleMaps(settings, n, start_xy, matcher)

@@ -1,0 +1,165 @@
+"""Scan matching against per-particle tiled maps (`tiles.TiledMaps`), for the RBPF.
+
+The same two searches as `matcher.py` (hit counting over an offset grid; likelihood field
+with a coarse grid and hill climbing), but particle i reads its own map through its tile
+table: a cell read is `pool[table[i, r >> 5, c >> 5], r & 31, c & 31]`. Particles are
+independent, so the outer loop runs on all cores (`numba.prange`); each particle's result
+depends only on its own inputs, so results do not depend on the number of threads.
+
+The dense kernels in `matcher.py` stay for the shared-map (course) filter, whose trajectories
+must not change bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+
+from slamlab.slam.tiles import TILE_MASK, TILE_SHIFT
+
+
+@numba.njit(cache=True, inline="always")
+def _cell(pool, tab, r, c):
+    return pool[tab[r >> TILE_SHIFT, c >> TILE_SHIFT], r & TILE_MASK, c & TILE_MASK]
+
+
+@numba.njit(cache=True)
+def tiled_score_hits(pool_lo, tab, thresh, ox, oy, inv_res, x, y, th, pts):
+    """Number of points (M, 2, body-yaw frame) on occupied cells of the map `tab` (one
+    particle's table) when the body is at (x, y, th)."""
+    H = tab.shape[0] << TILE_SHIFT
+    W = tab.shape[1] << TILE_SHIFT
+    c = math.cos(th)
+    s = math.sin(th)
+    total = 0.0
+    for i in range(pts.shape[0]):
+        wx = x + c * pts[i, 0] - s * pts[i, 1]
+        wy = y + s * pts[i, 0] + c * pts[i, 1]
+        col = int(math.floor((wx - ox) * inv_res))
+        row = int(math.floor((wy - oy) * inv_res))
+        if 0 <= row < H and 0 <= col < W and _cell(pool_lo, tab, row, col) > thresh:
+            total += 1.0
+    return total
+
+
+@numba.njit(cache=True)
+def tiled_score_field(pool_f, tab, ox, oy, inv_res, x, y, th, pts):
+    """Sum of the likelihood field (bilinear between cell centres) at the points."""
+    H = tab.shape[0] << TILE_SHIFT
+    W = tab.shape[1] << TILE_SHIFT
+    c = math.cos(th)
+    s = math.sin(th)
+    total = 0.0
+    for i in range(pts.shape[0]):
+        wx = x + c * pts[i, 0] - s * pts[i, 1]
+        wy = y + s * pts[i, 0] + c * pts[i, 1]
+        u = (wx - ox) * inv_res - 0.5
+        v = (wy - oy) * inv_res - 0.5
+        c0 = int(math.floor(u))
+        r0 = int(math.floor(v))
+        if c0 < 0 or r0 < 0 or c0 + 1 >= W or r0 + 1 >= H:
+            continue
+        fu = u - c0
+        fv = v - r0
+        total += (1.0 - fv) * ((1.0 - fu) * _cell(pool_f, tab, r0, c0) + fu * _cell(pool_f, tab, r0, c0 + 1)) + fv * (
+            (1.0 - fu) * _cell(pool_f, tab, r0 + 1, c0) + fu * _cell(pool_f, tab, r0 + 1, c0 + 1)
+        )
+    return total
+
+
+@numba.njit(cache=True, parallel=True)
+def tiled_grid_search(pool_lo, table, thresh, ox, oy, inv_res, poses, pts, offsets, out_poses, out_scores):
+    """Per particle i (its map `table[i]`), the offset with the most hits (earlier offsets
+    win ties, as `matcher.grid_search_hits`)."""
+    for i in numba.prange(poses.shape[0]):
+        tab = table[i]
+        best = -1.0
+        bk = 0
+        for k in range(offsets.shape[0]):
+            sc = tiled_score_hits(pool_lo, tab, thresh, ox, oy, inv_res, poses[i, 0] + offsets[k, 0], poses[i, 1] + offsets[k, 1], poses[i, 2] + offsets[k, 2], pts)
+            if sc > best:
+                best = sc
+                bk = k
+        out_poses[i, 0] = poses[i, 0] + offsets[bk, 0]
+        out_poses[i, 1] = poses[i, 1] + offsets[bk, 1]
+        out_poses[i, 2] = poses[i, 2] + offsets[bk, 2]
+        out_scores[i] = best
+
+
+@numba.njit(cache=True)
+def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw):
+    """One particle: coarse grid, then hill climbing (see `matcher.field_search`)."""
+    bx = px
+    by = py
+    bt = pt
+    if offsets.shape[0] > 1:
+        best = -1e300
+        bk = 0
+        for k in range(offsets.shape[0]):
+            sc = tiled_score_field(pool_f, tab, ox, oy, inv_res, px + offsets[k, 0], py + offsets[k, 1], pt + offsets[k, 2], coarse_pts)
+            sc -= kxy * (offsets[k, 0] ** 2 + offsets[k, 1] ** 2) + kyaw * offsets[k, 2] ** 2
+            if sc > best:
+                best = sc
+                bk = k
+        bx += offsets[bk, 0]
+        by += offsets[bk, 1]
+        bt += offsets[bk, 2]
+    cur = tiled_score_field(pool_f, tab, ox, oy, inv_res, bx, by, bt, fine_pts)
+    cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
+    ls = lin_step
+    as_ = ang_step
+    for _ in range(levels):
+        for _it in range(16):  # bounded: a climb never runs away on a flat score
+            mx = bx
+            my = by
+            mt = bt
+            ms = cur
+            for m in range(6):
+                cx = bx
+                cy = by
+                ct = bt
+                if m == 0:
+                    cx += ls
+                elif m == 1:
+                    cx -= ls
+                elif m == 2:
+                    cy += ls
+                elif m == 3:
+                    cy -= ls
+                elif m == 4:
+                    ct += as_
+                else:
+                    ct -= as_
+                sc = tiled_score_field(pool_f, tab, ox, oy, inv_res, cx, cy, ct, fine_pts)
+                sc -= kxy * ((cx - px) ** 2 + (cy - py) ** 2) + kyaw * (ct - pt) ** 2
+                if sc > ms:
+                    ms = sc
+                    mx = cx
+                    my = cy
+                    mt = ct
+            if ms > cur:
+                bx = mx
+                by = my
+                bt = mt
+                cur = ms
+            else:
+                break
+        ls *= 0.5
+        as_ *= 0.5
+    return bx, by, bt, cur
+
+
+@numba.njit(cache=True, parallel=True)
+def tiled_field_search(pool_f, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores):
+    """Per particle i, coarse-to-fine likelihood-field matching on its own map `table[i]`."""
+    for i in numba.prange(poses.shape[0]):
+        bx, by, bt, cur = _climb(
+            pool_f, table[i], ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2],
+            coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw,
+        )
+        out_poses[i, 0] = bx
+        out_poses[i, 1] = by
+        out_poses[i, 2] = bt
+        out_scores[i] = cur
+

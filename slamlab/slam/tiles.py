@@ -1,0 +1,450 @@
+"""Sparse, copy-on-write occupancy maps: one log-odds grid (and likelihood field) per particle.
+
+Why: a Rao-Blackwellised filter gives every particle its own map. Copying N full grids on
+every resample is too slow and too big, so cells live in fixed square tiles of
+`TILE` x `TILE` cells (32 x 32 = 1.6 m at 5 cm) held in one shared pool:
+
+- `table[p, tr, tc]` is the pool index of particle p's tile at tile row tr, tile column tc;
+  index 0 is the *empty tile* (all zeros, never written), so unexplored space costs nothing
+  and a read never branches on "allocated?".
+- A tile may be shared by many particles (after resampling, children share their parent's
+  tiles). `refcount[t]` counts the table entries that point at tile t. A particle's first
+  write into a tile it shares (or into the empty tile) copies that tile to a fresh one from
+  the free list (copy on write); its siblings and parent keep the old tile.
+- Resampling copies the small tables (N x tiles), never cells, and recounts references;
+  tiles no particle points at any more go back to the free list.
+- A matching read is two flat array lookups, `pool[table[p, r >> 5, c >> 5], r & 31, c & 31]`,
+  inside the numba kernels (see `tiled_match.py`).
+
+Memory therefore grows with the tiles the particles have actually changed (held once,
+whatever the number of particles sharing them), not with particles x map area.
+
+Cell (row r, col c) covers x in [origin_x + c*res, +res), y in [origin_y + r*res, +res); the
+table grows by whole tiles when a scan would leave it (origin moves by whole tiles).
+
+The likelihood field (a Gaussian of the distance to the nearest occupied cell, as
+`grid.OccupancyGrid`) is kept per particle too, updated incrementally: a cell that becomes
+occupied raises the field around it (max with the kernel); a cell that stops being occupied
+has the field recomputed within the kernel radius. The result equals a full recomputation.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from slamlab.frames import GridImage
+from slamlab.geometry import FloatArray
+from slamlab.slam.grid import MapSettings
+from slamlab.slam.raycast import gaussian_kernel
+
+TILE_SHIFT = 5
+TILE = 1 << TILE_SHIFT  # cells per tile side
+TILE_MASK = TILE - 1
+EMPTY = 0  # pool index of the shared all-zero tile
+
+
+@numba.njit(cache=True, inline="always")
+def _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, used):
+    """Pool index of particle p's tile (tr, tc), made private to p (copied on write).
+
+    A tile is p's own when `ref[t] == 1`; otherwise p takes the next tile of its own slice
+    `free` of the free list (`used[0]` of them taken so far; the caller hands out enough) and
+    copies the old tile into it. References of the old tile are recounted by the caller
+    after the batch, so particles updated in parallel never write the same counter."""
+    t = table[p, tr, tc]
+    if t != EMPTY and ref[t] == 1:
+        return t
+    nt = free[used[0]]
+    used[0] += 1
+    pool_lo[nt, :, :] = pool_lo[t, :, :]
+    if has_field:
+        pool_f[nt, :, :] = pool_f[t, :, :]
+    ref[nt] = 1
+    table[p, tr, tc] = nt
+    return nt
+
+
+@numba.njit(cache=True)
+def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, used,
+                  r0, c0, rows, cols, l_occ, l_free, lmin, lmax, thresh, flips):
+    """Ray-cast one scan into particle p's map: cells strictly before each end get `l_free`,
+    end cells `l_occ` (all free updates first, as `raycast.raycast_update`), clamped to
+    [lmin, lmax]. Cells whose `lo > thresh` state changes are appended to `flips` (K, 3:
+    row, col, 1 = became occupied / 0 = became free); returns their count. Cells are given
+    in table coordinates and must lie inside the table."""
+    nflip = 0
+    last_tr = -1
+    last_tc = -1
+    t = 0
+    for k in range(rows.shape[0]):
+        r1 = rows[k]
+        c1 = cols[k]
+        dr = abs(r1 - r0)
+        dc = abs(c1 - c0)
+        sr = 1 if r1 > r0 else -1
+        sc = 1 if c1 > c0 else -1
+        err = dc - dr
+        r = r0
+        c = c0
+        while r != r1 or c != c1:
+            tr = r >> TILE_SHIFT
+            tc = c >> TILE_SHIFT
+            if tr != last_tr or tc != last_tc:
+                t = _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, used)
+                last_tr = tr
+                last_tc = tc
+            ir = r & TILE_MASK
+            ic = c & TILE_MASK
+            old = pool_lo[t, ir, ic]
+            new = old + l_free
+            if new < lmin:
+                new = lmin
+            pool_lo[t, ir, ic] = new
+            if old > thresh and not new > thresh:
+                flips[nflip, 0] = r
+                flips[nflip, 1] = c
+                flips[nflip, 2] = 0
+                nflip += 1
+            e2 = 2 * err
+            if e2 > -dr:
+                err -= dr
+                c += sc
+            if e2 < dc:
+                err += dc
+                r += sr
+    for k in range(rows.shape[0]):
+        r = rows[k]
+        c = cols[k]
+        t = _writable(table, p, r >> TILE_SHIFT, c >> TILE_SHIFT, pool_lo, pool_f, has_field, ref, free, used)
+        ir = r & TILE_MASK
+        ic = c & TILE_MASK
+        old = pool_lo[t, ir, ic]
+        new = old + l_occ
+        if new > lmax:
+            new = lmax
+        pool_lo[t, ir, ic] = new
+        if new > thresh and not old > thresh:
+            flips[nflip, 0] = r
+            flips[nflip, 1] = c
+            flips[nflip, 2] = 1
+            nflip += 1
+    return nflip
+
+
+@numba.njit(cache=True)
+def _splat(table, p, pool_lo, pool_f, ref, free, used, kernel, r, c, b0, b1, d0, d1):
+    """Raise particle p's field to the kernel centred on cell (r, c), within rows [b0, b1)
+    and cols [d0, d1). Tile by tile, so the copy-on-write check runs once per tile."""
+    R = kernel.shape[0] // 2
+    r_lo = max(r - R, b0)
+    r_hi = min(r + R + 1, b1)
+    c_lo = max(c - R, d0)
+    c_hi = min(c + R + 1, d1)
+    if r_lo >= r_hi or c_lo >= c_hi:
+        return
+    for tr in range(r_lo >> TILE_SHIFT, ((r_hi - 1) >> TILE_SHIFT) + 1):
+        ra = max(r_lo, tr << TILE_SHIFT)
+        rb = min(r_hi, (tr + 1) << TILE_SHIFT)
+        for tc in range(c_lo >> TILE_SHIFT, ((c_hi - 1) >> TILE_SHIFT) + 1):
+            ca = max(c_lo, tc << TILE_SHIFT)
+            cb = min(c_hi, (tc + 1) << TILE_SHIFT)
+            t = table[p, tr, tc]
+            raise_needed = False
+            for rr in range(ra, rb):
+                for cc in range(ca, cb):
+                    if kernel[rr - r + R, cc - c + R] > pool_f[t, rr & TILE_MASK, cc & TILE_MASK]:
+                        raise_needed = True
+                        break
+                if raise_needed:
+                    break
+            if not raise_needed:
+                continue
+            t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, used)
+            for rr in range(ra, rb):
+                for cc in range(ca, cb):
+                    v = kernel[rr - r + R, cc - c + R]
+                    if v > pool_f[t, rr & TILE_MASK, cc & TILE_MASK]:
+                        pool_f[t, rr & TILE_MASK, cc & TILE_MASK] = v
+
+
+@numba.njit(cache=True)
+def _recompute(table, p, pool_lo, pool_f, ref, free, used, thresh, kernel, b0, b1, d0, d1):
+    """Recompute particle p's field in rows [b0, b1), cols [d0, d1) from the occupied cells
+    within the kernel radius of that box."""
+    H = table.shape[1] * TILE
+    W = table.shape[2] * TILE
+    R = kernel.shape[0] // 2
+    for tr in range(b0 >> TILE_SHIFT, ((b1 - 1) >> TILE_SHIFT) + 1):
+        for tc in range(d0 >> TILE_SHIFT, ((d1 - 1) >> TILE_SHIFT) + 1):
+            if table[p, tr, tc] == EMPTY:
+                continue  # its field is zero already
+            t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, used)
+            for rr in range(max(b0, tr << TILE_SHIFT), min(b1, (tr + 1) << TILE_SHIFT)):
+                for cc in range(max(d0, tc << TILE_SHIFT), min(d1, (tc + 1) << TILE_SHIFT)):
+                    pool_f[t, rr & TILE_MASK, cc & TILE_MASK] = 0.0
+    for r in range(max(b0 - R, 0), min(b1 + R, H)):
+        for c in range(max(d0 - R, 0), min(d1 + R, W)):
+            if pool_lo[table[p, r >> TILE_SHIFT, c >> TILE_SHIFT], r & TILE_MASK, c & TILE_MASK] > thresh:
+                _splat(table, p, pool_lo, pool_f, ref, free, used, kernel, r, c, b0, b1, d0, d1)
+
+
+@numba.njit(cache=True)
+def tiled_field_update(table, p, pool_lo, pool_f, ref, free, used, thresh, kernel, flips, nflip):
+    """Bring particle p's likelihood field up to date after `tiled_raycast` changed the
+    occupancy of the cells in `flips[:nflip]`. Around cells that became free the field is
+    recomputed (neighbouring ones in one box) from the occupied cells within the kernel
+    radius R; around a cell that became occupied it is raised to the kernel (max). Field
+    values only exist inside the table."""
+    H = table.shape[1] * TILE
+    W = table.shape[2] * TILE
+    R = kernel.shape[0] // 2
+    # boxes of the cells that became free, merged while a flip lies within R of the box
+    have = False
+    b0 = 0
+    b1 = 0
+    d0 = 0
+    d1 = 0
+    for f in range(nflip + 1):
+        if f < nflip:
+            if flips[f, 2] != 0:
+                continue
+            r = flips[f, 0]
+            c = flips[f, 1]
+            if have and b0 - R <= r < b1 + R and d0 - R <= c < d1 + R:
+                b0 = min(b0, max(r - R, 0))
+                b1 = max(b1, min(r + R + 1, H))
+                d0 = min(d0, max(c - R, 0))
+                d1 = max(d1, min(c + R + 1, W))
+                continue
+        if have:
+            _recompute(table, p, pool_lo, pool_f, ref, free, used, thresh, kernel, b0, b1, d0, d1)
+            have = False
+        if f < nflip:
+            b0 = max(r - R, 0)
+            b1 = min(r + R + 1, H)
+            d0 = max(c - R, 0)
+            d1 = min(c + R + 1, W)
+            have = True
+    for f in range(nflip):
+        if flips[f, 2] == 0:
+            continue
+        r = flips[f, 0]
+        c = flips[f, 1]
+        # a cell may have flipped down and up in the same scan: only occupied ones raise
+        if pool_lo[table[p, r >> TILE_SHIFT, c >> TILE_SHIFT], r & TILE_MASK, c & TILE_MASK] > thresh:
+            _splat(table, p, pool_lo, pool_f, ref, free, used, kernel, r, c, 0, H, 0, W)
+
+
+@numba.njit(cache=True, parallel=True)
+def insert_scans(table, pool_lo, pool_f, has_field, ref, free_rows, used, which, poses, pts, origin,
+                 ox, oy, inv_res, l_occ, l_free, lmin, lmax, thresh, kernel, rows, cols, flips):
+    """Ray-cast one scan (`pts` (M, 2) and lidar `origin` (2,), body-yaw frame, m) into the
+    maps of particles `which`, each from its own pose `poses[i]`, and update their fields.
+    Particles run in parallel; particle j of `which` takes fresh tiles only from
+    `free_rows[j]` and counts them in `used[j]`. `rows`, `cols` (len(which), M) and `flips`
+    (len(which), K, 3) are scratch space."""
+    for j in numba.prange(which.shape[0]):
+        i = which[j]
+        x = poses[i, 0]
+        y = poses[i, 1]
+        c = math.cos(poses[i, 2])
+        s = math.sin(poses[i, 2])
+        for k in range(pts.shape[0]):
+            wx = x + c * pts[k, 0] - s * pts[k, 1]
+            wy = y + s * pts[k, 0] + c * pts[k, 1]
+            cols[j, k] = int(math.floor((wx - ox) * inv_res))
+            rows[j, k] = int(math.floor((wy - oy) * inv_res))
+        sx = x + c * origin[0] - s * origin[1]
+        sy = y + s * origin[0] + c * origin[1]
+        sc = int(math.floor((sx - ox) * inv_res))
+        sr = int(math.floor((sy - oy) * inv_res))
+        nflip = tiled_raycast(table, i, pool_lo, pool_f, has_field, ref, free_rows[j], used[j:j + 1],
+                              sr, sc, rows[j], cols[j], l_occ, l_free, lmin, lmax, thresh, flips[j])
+        if has_field and nflip > 0:
+            tiled_field_update(table, i, pool_lo, pool_f, ref, free_rows[j], used[j:j + 1], thresh, kernel, flips[j], nflip)
+
+
+def _grown(pool: np.ndarray, capacity: int) -> np.ndarray:
+    out = np.empty((capacity,) + pool.shape[1:], dtype=pool.dtype)
+    out[: len(pool)] = pool
+    return out
+
+
+class TiledMaps:
+    """N particle maps in shared copy-on-write tiles (see module doc).
+
+    `field_sigma_m` > 0 keeps a likelihood field per particle (values in [0, 1]), as
+    `grid.OccupancyGrid`. All maps start empty, centred at `center_xy` (m)."""
+
+    def __init__(
+        self,
+        settings: MapSettings,
+        n_maps: int,
+        center_xy: tuple[float, float] = (0.0, 0.0),
+        field_sigma_m: float = 0.0,
+        field_radius_m: float = 0.0,
+        initial_tiles: int = 256,
+    ) -> None:
+        self.s = settings
+        self.res = settings.resolution_m
+        self.n = int(n_maps)
+        side = max(int(np.ceil(settings.initial_size_m / (self.res * TILE))), 1)
+        self.origin = np.array([center_xy[0] - side * TILE * self.res / 2.0, center_xy[1] - side * TILE * self.res / 2.0])
+        self.table = np.zeros((self.n, side, side), dtype=np.int32)
+        self.has_field = field_sigma_m > 0
+        self.kernel = np.zeros((1, 1), dtype=np.float32)
+        if self.has_field:
+            radius = max(int(np.ceil(max(field_radius_m, field_sigma_m) / self.res)), 1)
+            self.kernel = gaussian_kernel(field_sigma_m / self.res, radius)
+        cap = max(int(initial_tiles), 2)
+        self.pool_lo = np.zeros((cap, TILE, TILE), dtype=np.float32)
+        self.pool_f = np.zeros((cap if self.has_field else 1, TILE, TILE), dtype=np.float32)
+        self.ref = np.zeros(cap, dtype=np.int32)
+        self.free = np.arange(1, cap, dtype=np.int32)  # tile ids no table refers to (not 0)
+        self.peak_tiles = 0
+        self.tiles_copied = 0
+        self.grow_count = 0
+
+    # ---- geometry -----------------------------------------------------------------------
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Cells (rows, cols) covered by the table."""
+        return self.table.shape[1] * TILE, self.table.shape[2] * TILE
+
+    def cells(self, xy: FloatArray) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, cols) int64 of world points (M, 2) m in table coordinates."""
+        c = np.floor((xy[:, 0] - self.origin[0]) / self.res).astype(np.int64)
+        r = np.floor((xy[:, 1] - self.origin[1]) / self.res).astype(np.int64)
+        return r, c
+
+    def ensure(self, xmin: float, ymin: float, xmax: float, ymax: float) -> None:
+        """Grow every table by whole tiles (plus `growth_margin_m`) so the box (m) fits with
+        one kernel radius to spare. Only the small tables are copied, never cells."""
+        H, W = self.shape
+        R = self.kernel.shape[0] // 2 + 1
+        m = int(np.ceil(self.s.growth_margin_m / (self.res * TILE)))
+        lo_c = int(np.floor((xmin - self.origin[0]) / self.res)) - R
+        lo_r = int(np.floor((ymin - self.origin[1]) / self.res)) - R
+        hi_c = int(np.floor((xmax - self.origin[0]) / self.res)) + R
+        hi_r = int(np.floor((ymax - self.origin[1]) / self.res)) + R
+        pad_l = (-lo_c + TILE - 1) // TILE + m if lo_c < 0 else 0
+        pad_b = (-lo_r + TILE - 1) // TILE + m if lo_r < 0 else 0
+        pad_r = (hi_c - W) // TILE + 1 + m if hi_c >= W else 0
+        pad_t = (hi_r - H) // TILE + 1 + m if hi_r >= H else 0
+        if pad_l == pad_b == pad_r == pad_t == 0:
+            return
+        self.table = np.pad(self.table, ((0, 0), (pad_b, pad_t), (pad_l, pad_r)))
+        self.origin = self.origin - np.array([pad_l, pad_b]) * TILE * self.res
+        self.grow_count += 1
+
+    # ---- tile pool ----------------------------------------------------------------------
+    @property
+    def tiles_in_use(self) -> int:
+        """Distinct tiles held (shared tiles count once; the empty tile not at all)."""
+        return int(len(self.ref) - 1 - len(self.free))
+
+    def _reserve(self, n_tiles: int) -> None:
+        """Make sure at least `n_tiles` tiles are free (the kernels cannot allocate)."""
+        if len(self.free) >= n_tiles:
+            return
+        cap = len(self.ref)
+        new_cap = max(2 * cap, cap + n_tiles - len(self.free))
+        # np.empty + copy: a new tile's pages are only touched when the tile is taken
+        self.pool_lo = _grown(self.pool_lo, new_cap)
+        if self.has_field:
+            self.pool_f = _grown(self.pool_f, new_cap)
+        self.ref = np.concatenate([self.ref, np.zeros(new_cap - cap, dtype=np.int32)])
+        self.free = np.concatenate([self.free, np.arange(cap, new_cap, dtype=np.int32)])
+
+    def insert_scan(self, poses: FloatArray, scan_xy: FloatArray, scan_origin: FloatArray, which: np.ndarray | None = None) -> None:
+        """Ray-cast one scan into the maps of particles `which` (default: all), each from
+        its own pose `poses[i]` (x m, y m, yaw rad). `scan_xy` (M, 2) are the scan points
+        and `scan_origin` (2,) the lidar centre, in the body-yaw frame (m)."""
+        if len(scan_xy) == 0:
+            return
+        which = np.arange(self.n, dtype=np.int64) if which is None else np.asarray(which, dtype=np.int64)
+        poses = np.ascontiguousarray(poses, dtype=np.float64)
+        pts = np.ascontiguousarray(scan_xy, dtype=np.float64)
+        origin = np.ascontiguousarray(scan_origin, dtype=np.float64)
+        # the scan's box in the body frame, rotated by any yaw, fits in a disc of radius rmax
+        body = np.vstack([pts, origin])
+        rmax = float(np.sqrt((body**2).sum(axis=1)).max())
+        px, py = poses[which, 0], poses[which, 1]
+        self.ensure(px.min() - rmax, py.min() - rmax, px.max() + rmax, py.max() + rmax)
+        R = self.kernel.shape[0] // 2
+        # fresh tiles one particle can need: every tile its scan's box (+ kernel radius) touches
+        span = int(np.ceil((2 * rmax / self.res + 2 * R + 2) / TILE)) + 1
+        per = span * span
+        self._reserve(per * len(which))
+        free_rows = np.ascontiguousarray(self.free[: per * len(which)].reshape(len(which), per))
+        used = np.zeros(len(which), dtype=np.int64)
+        # each cell flips at most once down (free pass) and once up (hit pass); a beam walks
+        # at most its length in cells + 2 (rounding at both ends)
+        n_flips = int(np.ceil(np.sqrt(((pts - origin) ** 2).sum(axis=1)) / self.res).sum()) + 3 * len(pts)
+        rows, cols, flips = self._scratch(len(which), len(pts), n_flips)
+        s = self.s
+        insert_scans(
+            self.table, self.pool_lo, self.pool_f, self.has_field, self.ref, free_rows, used, which, poses, pts, origin,
+            float(self.origin[0]), float(self.origin[1]), 1.0 / self.res,
+            np.float32(s.log_odds_occupied), np.float32(s.log_odds_free), np.float32(s.clamp_min),
+            np.float32(s.clamp_max), np.float32(s.occupied_threshold), self.kernel, rows, cols, flips,
+        )
+        self.tiles_copied += int(used.sum())
+        self._recount()
+        self.peak_tiles = max(self.peak_tiles, self.tiles_in_use)
+
+    def _scratch(self, n: int, m: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Reused work arrays for `insert_scans` (grown, never shrunk)."""
+        rc = getattr(self, "_rc", None)
+        if rc is None or rc.shape[1] < n or rc.shape[2] < m:
+            rc = self._rc = np.empty((2, n, m), dtype=np.int64)
+        fl = getattr(self, "_fl", None)
+        if fl is None or fl.shape[0] < n or fl.shape[1] < k:
+            fl = self._fl = np.empty((n, max(k, 2 * (fl.shape[1] if fl is not None else 0)), 3), dtype=np.int64)
+        return rc[0, :n, :m], rc[1, :n, :m], fl[:n]
+
+    def share_all_from(self, p: int) -> None:
+        """Every particle takes particle p's map (shared tiles, no cell copied)."""
+        self.resample(np.full(self.n, p, dtype=np.int64))
+
+    def resample(self, idx: np.ndarray) -> None:
+        """Particle j takes the map of old particle idx[j]: tables are copied, tiles shared;
+        tiles nobody refers to any more return to the free list."""
+        self.table = np.ascontiguousarray(self.table[np.asarray(idx)])
+        self._recount()
+
+    def _recount(self) -> None:
+        ref = np.bincount(self.table.ravel(), minlength=len(self.ref)).astype(np.int32)
+        ref[EMPTY] = 0
+        self.ref = ref
+        self.free = np.flatnonzero(ref[1:] == 0).astype(np.int32) + 1
+
+    # ---- reading ------------------------------------------------------------------------
+    def bytes_per_tile(self) -> int:
+        return TILE * TILE * 4 * (2 if self.has_field else 1)
+
+    def memory_mb(self, tiles: int | None = None) -> float:
+        """MB held by the maps: distinct tiles (shared ones once) plus the tables."""
+        n = self.tiles_in_use if tiles is None else tiles
+        return (n * self.bytes_per_tile() + self.table.nbytes) / 1e6
+
+    def dense(self, p: int, which: str = "log_odds") -> np.ndarray:
+        """Particle p's whole table area as one float32 array [H, W] (tests, small maps)."""
+        pool = self.pool_lo if which == "log_odds" else self.pool_f
+        return pool[self.table[p]].transpose(0, 2, 1, 3).reshape(self.shape)
+
+    def to_image(self, p: int) -> GridImage:
+        """Particle p's log-odds map, cropped to the tiles it has written (float32 GridImage)."""
+        tab = self.table[p]
+        rr, cc = np.nonzero(tab != EMPTY)
+        if len(rr) == 0:
+            rr, cc = np.array([0]), np.array([0])
+        r0, r1, c0, c1 = rr.min(), rr.max() + 1, cc.min(), cc.max() + 1
+        block = self.pool_lo[tab[r0:r1, c0:c1]]  # (th, tw, T, T)
+        data = block.transpose(0, 2, 1, 3).reshape((r1 - r0) * TILE, (c1 - c0) * TILE).copy()
+        ox = float(self.origin[0] + c0 * TILE * self.res)
+        oy = float(self.origin[1] + r0 * TILE * self.res)
+        return GridImage(data=data, resolution_m=self.res, origin_xy=(ox, oy))
