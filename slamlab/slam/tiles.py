@@ -173,22 +173,33 @@ def _splat(table, p, pool_lo, pool_f, ref, free, used, kernel, r, c, b0, b1, d0,
 @numba.njit(cache=True)
 def _recompute(table, p, pool_lo, pool_f, ref, free, used, thresh, kernel, b0, b1, d0, d1):
     """Recompute particle p's field in rows [b0, b1), cols [d0, d1) from the occupied cells
-    within the kernel radius of that box."""
+    within the kernel radius of that box. Only cells whose value changes are written, so
+    tiles are copied only where the field really moved (near the freed cells)."""
     H = table.shape[1] * TILE
     W = table.shape[2] * TILE
     R = kernel.shape[0] // 2
-    for tr in range(b0 >> TILE_SHIFT, ((b1 - 1) >> TILE_SHIFT) + 1):
-        for tc in range(d0 >> TILE_SHIFT, ((d1 - 1) >> TILE_SHIFT) + 1):
-            if table[p, tr, tc] == EMPTY:
-                continue  # its field is zero already
-            t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, used)
-            for rr in range(max(b0, tr << TILE_SHIFT), min(b1, (tr + 1) << TILE_SHIFT)):
-                for cc in range(max(d0, tc << TILE_SHIFT), min(d1, (tc + 1) << TILE_SHIFT)):
-                    pool_f[t, rr & TILE_MASK, cc & TILE_MASK] = 0.0
+    new = np.zeros((b1 - b0, d1 - d0), dtype=np.float32)
     for r in range(max(b0 - R, 0), min(b1 + R, H)):
         for c in range(max(d0 - R, 0), min(d1 + R, W)):
             if pool_lo[table[p, r >> TILE_SHIFT, c >> TILE_SHIFT], r & TILE_MASK, c & TILE_MASK] > thresh:
-                _splat(table, p, pool_lo, pool_f, ref, free, used, kernel, r, c, b0, b1, d0, d1)
+                for rr in range(max(r - R, b0), min(r + R + 1, b1)):
+                    for cc in range(max(c - R, d0), min(c + R + 1, d1)):
+                        v = kernel[rr - r + R, cc - c + R]
+                        if v > new[rr - b0, cc - d0]:
+                            new[rr - b0, cc - d0] = v
+    for tr in range(b0 >> TILE_SHIFT, ((b1 - 1) >> TILE_SHIFT) + 1):
+        for tc in range(d0 >> TILE_SHIFT, ((d1 - 1) >> TILE_SHIFT) + 1):
+            t = table[p, tr, tc]
+            ra = max(b0, tr << TILE_SHIFT)
+            rb = min(b1, (tr + 1) << TILE_SHIFT)
+            ca = max(d0, tc << TILE_SHIFT)
+            cb = min(d1, (tc + 1) << TILE_SHIFT)
+            for rr in range(ra, rb):
+                for cc in range(ca, cb):
+                    v = new[rr - b0, cc - d0]
+                    if v != pool_f[t, rr & TILE_MASK, cc & TILE_MASK]:
+                        t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, used)
+                        pool_f[t, rr & TILE_MASK, cc & TILE_MASK] = v
 
 
 @numba.njit(cache=True)
@@ -239,12 +250,72 @@ def tiled_field_update(table, p, pool_lo, pool_f, ref, free, used, thresh, kerne
 
 
 @numba.njit(cache=True, parallel=True)
-def insert_scans(table, pool_lo, pool_f, has_field, ref, free_rows, used, which, poses, pts, origin,
+def count_fresh_tiles(table, ref, which, poses, pts, origin, ox, oy, inv_res, dilate, out):
+    """Upper bound of the fresh tiles each particle of `which` can take when the scan is
+    ray-cast from its pose: tiles its beams cross that it does not own alone (empty or
+    shared), plus, with `dilate` (a likelihood field within R < TILE cells of the beams), their
+    8 neighbours. Written to `out[j]`."""
+    TH = table.shape[1]
+    TW = table.shape[2]
+    for j in numba.prange(which.shape[0]):
+        i = which[j]
+        mark = np.zeros((TH, TW), dtype=np.uint8)
+        x = poses[i, 0]
+        y = poses[i, 1]
+        c = math.cos(poses[i, 2])
+        s = math.sin(poses[i, 2])
+        sx = x + c * origin[0] - s * origin[1]
+        sy = y + s * origin[0] + c * origin[1]
+        c0 = int(math.floor((sx - ox) * inv_res))
+        r0 = int(math.floor((sy - oy) * inv_res))
+        n = 0
+        for k in range(pts.shape[0]):
+            wx = x + c * pts[k, 0] - s * pts[k, 1]
+            wy = y + s * pts[k, 0] + c * pts[k, 1]
+            c1 = int(math.floor((wx - ox) * inv_res))
+            r1 = int(math.floor((wy - oy) * inv_res))
+            dr = abs(r1 - r0)
+            dc = abs(c1 - c0)
+            sr = 1 if r1 > r0 else -1
+            sc = 1 if c1 > c0 else -1
+            err = dc - dr
+            r = r0
+            cc = c0
+            last = -1
+            while True:
+                key = (r >> TILE_SHIFT) * TW + (cc >> TILE_SHIFT)
+                if key != last:
+                    last = key
+                    tr = r >> TILE_SHIFT
+                    tc = cc >> TILE_SHIFT
+                    lo_r = tr - 1 if dilate else tr
+                    lo_c = tc - 1 if dilate else tc
+                    for a in range(max(lo_r, 0), min(tr + (2 if dilate else 1), TH)):
+                        for b in range(max(lo_c, 0), min(tc + (2 if dilate else 1), TW)):
+                            if mark[a, b] == 0:
+                                mark[a, b] = 1
+                                t = table[i, a, b]
+                                if t == EMPTY or ref[t] != 1:
+                                    n += 1
+                if r == r1 and cc == c1:
+                    break
+                e2 = 2 * err
+                if e2 > -dr:
+                    err -= dr
+                    cc += sc
+                if e2 < dc:
+                    err += dc
+                    r += sr
+        out[j] = n
+
+
+@numba.njit(cache=True, parallel=True)
+def insert_scans(table, pool_lo, pool_f, has_field, ref, free, starts, used, which, poses, pts, origin,
                  ox, oy, inv_res, l_occ, l_free, lmin, lmax, thresh, kernel, rows, cols, flips):
     """Ray-cast one scan (`pts` (M, 2) and lidar `origin` (2,), body-yaw frame, m) into the
     maps of particles `which`, each from its own pose `poses[i]`, and update their fields.
-    Particles run in parallel; particle j of `which` takes fresh tiles only from
-    `free_rows[j]` and counts them in `used[j]`. `rows`, `cols` (len(which), M) and `flips`
+    Particles run in parallel; particle j of `which` takes fresh tiles only from its slice
+    `free[starts[j]:starts[j + 1]]` and counts them in `used[j]`. `rows`, `cols` (len(which), M) and `flips`
     (len(which), K, 3) are scratch space."""
     for j in numba.prange(which.shape[0]):
         i = which[j]
@@ -261,15 +332,18 @@ def insert_scans(table, pool_lo, pool_f, has_field, ref, free_rows, used, which,
         sy = y + s * origin[0] + c * origin[1]
         sc = int(math.floor((sx - ox) * inv_res))
         sr = int(math.floor((sy - oy) * inv_res))
-        nflip = tiled_raycast(table, i, pool_lo, pool_f, has_field, ref, free_rows[j], used[j:j + 1],
+        mine = free[starts[j]:starts[j + 1]]
+        nflip = tiled_raycast(table, i, pool_lo, pool_f, has_field, ref, mine, used[j:j + 1],
                               sr, sc, rows[j], cols[j], l_occ, l_free, lmin, lmax, thresh, flips[j])
         if has_field and nflip > 0:
-            tiled_field_update(table, i, pool_lo, pool_f, ref, free_rows[j], used[j:j + 1], thresh, kernel, flips[j], nflip)
+            tiled_field_update(table, i, pool_lo, pool_f, ref, mine, used[j:j + 1], thresh, kernel, flips[j], nflip)
 
 
-def _grown(pool: np.ndarray, capacity: int) -> np.ndarray:
+def _grown(pool: np.ndarray, capacity: int, keep: np.ndarray) -> np.ndarray:
+    """A larger pool holding the tiles `keep` (and the empty tile) at the same indices."""
     out = np.empty((capacity,) + pool.shape[1:], dtype=pool.dtype)
-    out[: len(pool)] = pool
+    out[EMPTY] = 0.0
+    out[keep] = pool[keep]
     return out
 
 
@@ -352,10 +426,12 @@ class TiledMaps:
             return
         cap = len(self.ref)
         new_cap = max(2 * cap, cap + n_tiles - len(self.free))
-        # np.empty + copy: a new tile's pages are only touched when the tile is taken
-        self.pool_lo = _grown(self.pool_lo, new_cap)
+        # only tiles in use are copied: free ones hold nothing, and untouched memory stays
+        # unallocated (np.empty) until a tile is taken
+        keep = np.flatnonzero(self.ref > 0)
+        self.pool_lo = _grown(self.pool_lo, new_cap, keep)
         if self.has_field:
-            self.pool_f = _grown(self.pool_f, new_cap)
+            self.pool_f = _grown(self.pool_f, new_cap, keep)
         self.ref = np.concatenate([self.ref, np.zeros(new_cap - cap, dtype=np.int32)])
         self.free = np.concatenate([self.free, np.arange(cap, new_cap, dtype=np.int32)])
 
@@ -374,12 +450,11 @@ class TiledMaps:
         rmax = float(np.sqrt((body**2).sum(axis=1)).max())
         px, py = poses[which, 0], poses[which, 1]
         self.ensure(px.min() - rmax, py.min() - rmax, px.max() + rmax, py.max() + rmax)
-        R = self.kernel.shape[0] // 2
-        # fresh tiles one particle can need: every tile its scan's box (+ kernel radius) touches
-        span = int(np.ceil((2 * rmax / self.res + 2 * R + 2) / TILE)) + 1
-        per = span * span
-        self._reserve(per * len(which))
-        free_rows = np.ascontiguousarray(self.free[: per * len(which)].reshape(len(which), per))
+        x0, y0, inv = float(self.origin[0]), float(self.origin[1]), 1.0 / self.res
+        need = np.zeros(len(which), dtype=np.int64)
+        count_fresh_tiles(self.table, self.ref, which, poses, pts, origin, x0, y0, inv, self.has_field, need)
+        starts = np.concatenate([[0], np.cumsum(need)]).astype(np.int64)
+        self._reserve(int(starts[-1]))
         used = np.zeros(len(which), dtype=np.int64)
         # each cell flips at most once down (free pass) and once up (hit pass); a beam walks
         # at most its length in cells + 2 (rounding at both ends)
@@ -387,8 +462,8 @@ class TiledMaps:
         rows, cols, flips = self._scratch(len(which), len(pts), n_flips)
         s = self.s
         insert_scans(
-            self.table, self.pool_lo, self.pool_f, self.has_field, self.ref, free_rows, used, which, poses, pts, origin,
-            float(self.origin[0]), float(self.origin[1]), 1.0 / self.res,
+            self.table, self.pool_lo, self.pool_f, self.has_field, self.ref, self.free, starts, used, which, poses, pts, origin,
+            x0, y0, inv,
             np.float32(s.log_odds_occupied), np.float32(s.log_odds_free), np.float32(s.clamp_min),
             np.float32(s.clamp_max), np.float32(s.occupied_threshold), self.kernel, rows, cols, flips,
         )

@@ -1,0 +1,134 @@
+"""Copy-on-write tiled maps (slamlab.slam.tiles): isolation between particles, sharing after
+resampling, memory counted once, and the same cell values as the dense grid."""
+
+import numpy as np
+import pytest
+
+from slamlab.slam.grid import MapSettings, OccupancyGrid
+from slamlab.slam.scan import points_to_world
+from slamlab.slam.tiles import EMPTY, TILE, TiledMaps
+
+RES = 0.05
+# 12.8 m = 256 cells = 8 tiles: the dense grid and the tiles then share one origin
+SETTINGS = MapSettings(resolution_m=RES, initial_size_m=12.8, growth_margin_m=0.0)
+
+
+def _scan(rng: np.random.Generator, m: int = 90, max_r: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+    """Random beams around a room-like shape: (M, 2) body-frame points and the lidar origin."""
+    a = np.sort(rng.uniform(-np.pi, np.pi, m))
+    r = rng.uniform(0.5, max_r, m)
+    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1), np.array([0.1, 0.0])
+
+
+def _snapshot(maps: TiledMaps) -> list[tuple[np.ndarray, np.ndarray]]:
+    return [(maps.dense(p).copy(), maps.dense(p, "field").copy()) for p in range(maps.n)]
+
+
+def test_a_particle_update_never_changes_another_particles_map():
+    rng = np.random.default_rng(0)
+    maps = TiledMaps(SETTINGS, 3, field_sigma_m=0.1, field_radius_m=0.3)
+    pts, origin = _scan(rng)
+    poses = np.zeros((3, 3))
+    maps.insert_scan(poses, pts, origin, which=np.array([0]))
+    maps.share_all_from(0)
+    before = _snapshot(maps)
+    pts2, _ = _scan(rng)
+    moved = np.array([[0.0, 0, 0], [0.4, -0.3, 0.5], [0, 0, 0]])
+    maps.insert_scan(moved, pts2, origin, which=np.array([1]))
+    after = _snapshot(maps)
+    for p in (0, 2):
+        assert np.array_equal(before[p][0], after[p][0]) and np.array_equal(before[p][1], after[p][1])
+    assert not np.array_equal(before[1][0], after[1][0])
+    assert not np.array_equal(before[1][1], after[1][1])
+
+
+def test_resampled_children_share_tiles_until_one_writes():
+    rng = np.random.default_rng(1)
+    maps = TiledMaps(SETTINGS, 3, field_sigma_m=0.1, field_radius_m=0.3)
+    pts, origin = _scan(rng)
+    # two different parents: particle 0 and 1 map from different poses
+    poses = np.array([[0.0, 0, 0], [0.3, 0.2, 0.4], [0.0, 0, 0]])
+    maps.insert_scan(poses, pts, origin, which=np.array([0, 1]))
+    parent = (maps.dense(0).copy(), maps.dense(0, "field").copy())
+    other = (maps.dense(1).copy(), maps.dense(1, "field").copy())
+    maps.resample(np.array([0, 0, 1]))  # children 0 and 1 of old 0, child 2 of old 1
+    assert np.array_equal(maps.table[0], maps.table[1])  # shared, not copied
+    shared = maps.table[0][maps.table[0] != EMPTY]
+    assert (maps.ref[shared] == 2).all()
+    copied = maps.tiles_copied
+    pts2, _ = _scan(rng)
+    maps.insert_scan(np.array([[0.2, 0.1, -0.3]] * 3), pts2, origin, which=np.array([1]))
+    # the child's write copied tiles: its table now differs where it wrote ...
+    assert maps.tiles_copied > copied
+    assert (maps.table[1] != maps.table[0]).any()
+    # ... and neither its sibling (child 0 = the parent's map) nor child 2 changed
+    assert np.array_equal(maps.dense(0), parent[0]) and np.array_equal(maps.dense(0, "field"), parent[1])
+    assert np.array_equal(maps.dense(2), other[0]) and np.array_equal(maps.dense(2, "field"), other[1])
+    assert not np.array_equal(maps.dense(1), parent[0])
+    # references are exact: every tile a table holds counts each holder once
+    for t in np.unique(maps.table[maps.table != EMPTY]):
+        assert maps.ref[t] == (maps.table == t).sum()
+
+
+def test_shared_tiles_are_counted_once_in_memory():
+    rng = np.random.default_rng(2)
+    one = TiledMaps(SETTINGS, 1, field_sigma_m=0.1, field_radius_m=0.3)
+    many = TiledMaps(SETTINGS, 50, field_sigma_m=0.1, field_radius_m=0.3)
+    pts, origin = _scan(rng)
+    one.insert_scan(np.zeros((1, 3)), pts, origin)
+    many.insert_scan(np.zeros((50, 3)), pts, origin, which=np.array([0]))
+    many.share_all_from(0)
+    assert many.tiles_in_use == one.tiles_in_use > 0
+    tile_bytes = TILE * TILE * 4 * 2  # log-odds + field, float32
+    assert many.memory_mb() == pytest.approx((one.tiles_in_use * tile_bytes + many.table.nbytes) / 1e6)
+    # 50 particles each writing their own scan hold about 50 maps' worth of changed tiles
+    many.insert_scan(rng.normal(0, 0.3, (50, 3)), pts, origin)
+    assert many.tiles_in_use > 10 * one.tiles_in_use
+
+
+@pytest.mark.parametrize("field", [False, True])
+def test_tiles_hold_the_same_values_as_the_dense_grid(field):
+    """Random scans from random poses, crossing tile borders, with cells flipping both ways:
+    log-odds and the incrementally kept field equal the dense grid's (full recomputation
+    over the changed box) exactly."""
+    rng = np.random.default_rng(3)
+    sigma, radius = (0.1, 0.3) if field else (0.0, 0.0)
+    dense = OccupancyGrid(SETTINGS, (0.0, 0.0), sigma, radius)
+    maps = TiledMaps(SETTINGS, 2, (0.0, 0.0), sigma, radius)
+    assert np.allclose(dense.origin, maps.origin)
+    for k in range(60):
+        pose = np.array([rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)])
+        pts, origin = _scan(rng, m=60, max_r=3.5)
+        dense.insert(points_to_world(origin.reshape(1, 2), pose)[0], points_to_world(pts, pose))
+        maps.insert_scan(np.stack([pose, pose + 1.0]), pts, origin, which=np.array([0]))
+    assert maps.grow_count == 0 and dense.grow_count == 0
+    H, W = dense.shape
+    assert np.array_equal(maps.dense(0)[:H, :W], dense.log_odds)
+    flips_both_ways = (dense.log_odds > 0).sum()
+    assert flips_both_ways > 100
+    if field:
+        assert np.array_equal(maps.dense(0, "field")[:H, :W], dense.field)
+    # particle 1 never wrote: it still holds only the empty tile
+    assert (maps.table[1] == EMPTY).all()
+
+
+def test_growing_keeps_every_value_and_crops_the_image():
+    rng = np.random.default_rng(4)
+    maps = TiledMaps(SETTINGS, 1, field_sigma_m=0.1, field_radius_m=0.3)
+    pts, origin = _scan(rng)
+    maps.insert_scan(np.zeros((1, 3)), pts, origin)
+    img0 = maps.to_image(0)
+    # far away in both directions: the table grows on every side
+    maps.insert_scan(np.array([[30.0, -25.0, 0.0]]), pts, origin)
+    maps.insert_scan(np.array([[-30.0, 25.0, 0.0]]), pts, origin)
+    assert maps.grow_count >= 2
+    img = maps.to_image(0)
+    # the first scan's cells are where they were, in world coordinates
+    dx = int(round((img0.origin_xy[0] - img.origin_xy[0]) / RES))
+    dy = int(round((img0.origin_xy[1] - img.origin_xy[1]) / RES))
+    h, w = img0.data.shape
+    assert np.array_equal(img.data[dy:dy + h, dx:dx + w], img0.data)
+    # the image is cropped to the box of written tiles, not the whole table
+    rr, cc = np.nonzero(maps.table[0] != EMPTY)
+    assert img.data.shape == ((np.ptp(rr) + 1) * TILE, (np.ptp(cc) + 1) * TILE)
+    assert img0.data.shape[0] < maps.shape[0] and img0.data.shape[1] < maps.shape[1]
