@@ -1,0 +1,159 @@
+"""The RBPF issue's acceptance numbers: robustness of `+experiment=lidar2d`, the hard simulated
+world `+experiment=sim_loops`, and the budgets, as tables.
+
+    .venv/bin/python benchmarks/bench_filters.py [--only lidar2d,sim_loops,timing] [--jobs 2] [--out DIR]
+
+- lidar2d: Intel and ACES, seeds 0-4, at the preset's step thresholds and at half of them;
+  mean translational relation error of the causal (online) estimate and of the smoothed
+  path. Budget: worst run <= 0.030 m (Intel), <= 0.050 m (ACES).
+- sim_loops: the preset's filter on seeds 0-2 (budget: worst ATE RMSE <= 0.10 m), a
+  `particles` sweep (10, 30, 100) with filter=rbpf, and filter=course beside it.
+- timing: one quiet, whole `slamlab +experiment=lidar2d` process per log, run alone: wall,
+  CPU (user + system, both cores), peak resident memory of the process, map MB at the end
+  and at peak. Budget (Intel): <= 40 s wall, <= 1 GB. GMapping on this machine: 57 s, 129 MB.
+Accuracy runs go `--jobs` at a time with one thread each: results do not depend on the
+thread count (tested), only their wall times do, which is why timing runs alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pandas as pd
+
+from slamlab.paths import data_dir
+
+LOGS = {"intel": 0.030, "aces": 0.050}  # budget: worst mean relation error (m)
+PRESET_STEP = 0.2  # lidar2d's steps.min_distance_m and min_angle_rad
+
+
+def slamlab(args: list[str], run_dir: Path, threads: int | None = None) -> dict:
+    """Run one `slamlab` process; returns its metrics plus wall, CPU and peak memory."""
+    env = dict(os.environ)
+    if threads is not None:
+        env["NUMBA_NUM_THREADS"] = str(threads)
+    cmd = [sys.executable, "-m", "slamlab.cli.app", *args, f"hydra.run.dir={run_dir}", "progress=off", "report=false"]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if proc.returncode != 0:
+        tail = proc.stderr.strip().splitlines()[-1:] or ["?"]
+        return {"status": f"failed: {tail[0]}"}
+    m = json.loads((run_dir / "metrics.json").read_text())
+    m["wall_s"] = wall
+    m["cpu_s"] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return m
+
+
+def _many(jobs: list[tuple[dict, list[str]]], out: Path, n_jobs: int) -> list[dict]:
+    def one(k: int) -> dict:
+        key, args = jobs[k]
+        m = slamlab(args, out / f"run{k:03d}", threads=1)
+        return {**key, **m}
+
+    with ThreadPoolExecutor(n_jobs) as pool:
+        return list(pool.map(one, range(len(jobs))))
+
+
+def lidar2d(out: Path, n_jobs: int, seeds: range) -> None:
+    d = data_dir()
+    jobs = []
+    for log in LOGS:
+        for step in (PRESET_STEP, PRESET_STEP / 2):
+            for seed in seeds:
+                args = ["+experiment=lidar2d", f"dataset.path={d / 'carmen' / (log + '.clf.bz2')}", f"seed={seed}",
+                        f"steps.min_distance_m={step}", f"steps.min_angle_rad={step}"]
+                jobs.append(({"log": log, "step": step, "seed": seed}, args))
+    rows = []
+    for r in _many(jobs, out / "lidar2d", n_jobs):
+        rel = r.get("relations", {})
+        rows.append({"log": r["log"], "step_m_rad": r["step"], "seed": r["seed"], "filter": r.get("filter"),
+                     "causal_m": rel.get("causal", {}).get("trans_abs_mean_m", float("nan")),
+                     "smoothed_m": rel.get("trans_abs_mean_m", float("nan")),
+                     "rot_deg": rel.get("causal", {}).get("rot_abs_mean_deg", float("nan")),
+                     "status": r.get("status", "?")})
+    df = pd.DataFrame(rows)
+    print("\n## lidar2d: relation error per run (m)")
+    print(df.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
+    g = df.groupby(["log", "step_m_rad"]).agg(worst_causal_m=("causal_m", "max"), mean_causal_m=("causal_m", "mean"),
+                                              worst_smoothed_m=("smoothed_m", "max"), runs=("seed", "count")).reset_index()
+    g["budget_m"] = g["log"].map(LOGS)
+    g["pass"] = g["worst_causal_m"] <= g["budget_m"]
+    print("\n## lidar2d: worst of the seeds")
+    print(g.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
+
+
+def sim_loops(out: Path, n_jobs: int, seeds: range) -> None:
+    jobs = []
+    for seed in seeds:
+        jobs.append(({"what": "preset", "particles": None, "filter": "preset", "seed": seed}, ["+experiment=sim_loops", f"seed={seed}", "texture=none"]))
+        for n in (10, 30, 100):
+            jobs.append(({"what": "sweep", "particles": n, "filter": "rbpf", "seed": seed},
+                         ["+experiment=sim_loops", "filter=rbpf", f"particles={n}", f"seed={seed}", "texture=none"]))
+        jobs.append(({"what": "course", "particles": None, "filter": "course", "seed": seed},
+                     ["+experiment=sim_loops", "filter=course", f"seed={seed}", "texture=none"]))
+    rows = []
+    for r in _many(jobs, out / "sim_loops", n_jobs):
+        t = r.get("trajectory", {})
+        rows.append({"what": r["what"], "filter": r.get("filter", r["filter"]), "particles": r.get("particles"),
+                     "seed": r["seed"], "ate_rmse_m": t.get("rmse_m", float("nan")),
+                     "causal_rmse_m": t.get("causal_rmse_m", float("nan")),
+                     "odometry_rmse_m": t.get("odometry_rmse_m", float("nan")),
+                     "filter_s": r.get("runtime_s", float("nan")), "status": r.get("status", "?")})
+    df = pd.DataFrame(rows)
+    print("\n## sim_loops: per run")
+    print(df.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    g = df.groupby(["what", "filter", "particles"], dropna=False).agg(
+        mean_ate_m=("ate_rmse_m", "mean"), worst_ate_m=("ate_rmse_m", "max"), mean_causal_m=("causal_rmse_m", "mean"),
+        mean_filter_s=("filter_s", "mean"), seeds=("seed", "count")).reset_index()
+    print("\n## sim_loops: over seeds (budget: preset worst ATE <= 0.10 m; sweep: 100 particles better than 10)")
+    print(g.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+
+
+def timing(out: Path) -> None:
+    d = data_dir()
+    rows = []
+    for log in LOGS:
+        m = slamlab(["+experiment=lidar2d", f"dataset.path={d / 'carmen' / (log + '.clf.bz2')}"], out / f"timing-{log}")
+        mm = m.get("map_memory", {})
+        rows.append({"log": log, "filter": m.get("filter"), "particles": m.get("particles"), "steps": m.get("processed_steps"),
+                     "wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s"), "filter_s": m.get("runtime_s"),
+                     "peak_mb": m.get("peak_memory_mb"), "map_mb_end": mm.get("map_mb"), "map_mb_peak": mm.get("map_peak_mb"),
+                     "causal_m": m.get("relations", {}).get("causal", {}).get("trans_abs_mean_m")})
+    print("\n## timing: whole processes, one at a time (budget Intel <= 40 s, <= 1 GB; GMapping 57 s, 129 MB)")
+    print(pd.DataFrame(rows).to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", default="lidar2d,sim_loops,timing")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--seeds", type=int, default=5, help="lidar2d seeds (sim_loops uses 3)")
+    ap.add_argument("--out", type=Path, default=None, help="keep the run folders here")
+    args = ap.parse_args()
+    if data_dir() is None and ("lidar2d" in args.only or "timing" in args.only):
+        raise SystemExit("shared data not found: set SLAMLAB_DATA_DIR")
+    with tempfile.TemporaryDirectory(prefix="slamlab-bench-") as tmp:
+        out = args.out or Path(tmp)
+        parts = args.only.split(",")
+        if "timing" in parts:
+            timing(out)
+        if "lidar2d" in parts:
+            lidar2d(out, args.jobs, range(args.seeds))
+        if "sim_loops" in parts:
+            sim_loops(out, args.jobs, range(3))
+
+
+if __name__ == "__main__":
+    main()
