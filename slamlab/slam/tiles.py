@@ -35,6 +35,7 @@ import math
 import numba
 import numpy as np
 
+from slamlab.errors import ConfigError
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
 from slamlab.slam.grid import MapSettings
@@ -57,6 +58,8 @@ def _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, used):
     t = table[p, tr, tc]
     if t != EMPTY and ref[t] == 1:
         return t
+    if used[0] >= free.shape[0]:
+        raise RuntimeError("tile budget of count_fresh_tiles exceeded (a bug)")
     nt = free[used[0]]
     used[0] += 1
     pool_lo[nt, :, :] = pool_lo[t, :, :]
@@ -250,13 +253,18 @@ def tiled_field_update(table, p, pool_lo, pool_f, ref, free, used, thresh, kerne
 
 
 @numba.njit(cache=True, parallel=True)
-def count_fresh_tiles(table, ref, which, poses, pts, origin, ox, oy, inv_res, dilate, out):
+def count_fresh_tiles(table, ref, which, poses, pts, origin, ox, oy, inv_res, out):
     """Upper bound of the fresh tiles each particle of `which` can take when the scan is
-    ray-cast from its pose: tiles its beams cross that it does not own alone (empty or
-    shared), plus, with `dilate` (a likelihood field within R < TILE cells of the beams), their
-    8 neighbours. Written to `out[j]`."""
+    ray-cast from its pose (written to `out[j]`): the tiles it does not own alone (empty or
+    shared) among those within one tile of its beams.
+
+    Why that bounds every write: each beam is sampled every half tile, so any point of it is
+    within a quarter tile of a sample; the cells the ray cast walks are within one cell of
+    the beam, and field writes within R cells of those, so with R + 1 < 3/4 TILE every
+    written cell lies in a sample's tile or one of its 8 neighbours."""
     TH = table.shape[1]
     TW = table.shape[2]
+    half = 0.5 * TILE / inv_res  # sample spacing (m)
     for j in numba.prange(which.shape[0]):
         i = which[j]
         mark = np.zeros((TH, TW), dtype=np.uint8)
@@ -266,46 +274,31 @@ def count_fresh_tiles(table, ref, which, poses, pts, origin, ox, oy, inv_res, di
         s = math.sin(poses[i, 2])
         sx = x + c * origin[0] - s * origin[1]
         sy = y + s * origin[0] + c * origin[1]
-        c0 = int(math.floor((sx - ox) * inv_res))
-        r0 = int(math.floor((sy - oy) * inv_res))
         n = 0
         for k in range(pts.shape[0]):
-            wx = x + c * pts[k, 0] - s * pts[k, 1]
-            wy = y + s * pts[k, 0] + c * pts[k, 1]
-            c1 = int(math.floor((wx - ox) * inv_res))
-            r1 = int(math.floor((wy - oy) * inv_res))
-            dr = abs(r1 - r0)
-            dc = abs(c1 - c0)
-            sr = 1 if r1 > r0 else -1
-            sc = 1 if c1 > c0 else -1
-            err = dc - dr
-            r = r0
-            cc = c0
-            last = -1
-            while True:
-                key = (r >> TILE_SHIFT) * TW + (cc >> TILE_SHIFT)
-                if key != last:
-                    last = key
-                    tr = r >> TILE_SHIFT
-                    tc = cc >> TILE_SHIFT
-                    lo_r = tr - 1 if dilate else tr
-                    lo_c = tc - 1 if dilate else tc
-                    for a in range(max(lo_r, 0), min(tr + (2 if dilate else 1), TH)):
-                        for b in range(max(lo_c, 0), min(tc + (2 if dilate else 1), TW)):
-                            if mark[a, b] == 0:
-                                mark[a, b] = 1
-                                t = table[i, a, b]
-                                if t == EMPTY or ref[t] != 1:
-                                    n += 1
-                if r == r1 and cc == c1:
-                    break
-                e2 = 2 * err
-                if e2 > -dr:
-                    err -= dr
-                    cc += sc
-                if e2 < dc:
-                    err += dc
-                    r += sr
+            ex = x + c * pts[k, 0] - s * pts[k, 1]
+            ey = y + s * pts[k, 0] + c * pts[k, 1]
+            length = math.sqrt((ex - sx) ** 2 + (ey - sy) ** 2)
+            steps = int(math.ceil(length / half))
+            last_tr = -1
+            last_tc = -1
+            for q in range(steps + 1):
+                f = q / steps if steps > 0 else 0.0
+                px = sx + f * (ex - sx)
+                py = sy + f * (ey - sy)
+                tr = int(math.floor((py - oy) * inv_res)) >> TILE_SHIFT
+                tc = int(math.floor((px - ox) * inv_res)) >> TILE_SHIFT
+                if tr == last_tr and tc == last_tc:
+                    continue
+                last_tr = tr
+                last_tc = tc
+                for a in range(max(tr - 1, 0), min(tr + 2, TH)):
+                    for b in range(max(tc - 1, 0), min(tc + 2, TW)):
+                        if mark[a, b] == 0:
+                            mark[a, b] = 1
+                            t = table[i, a, b]
+                            if t == EMPTY or ref[t] != 1:
+                                n += 1
         out[j] = n
 
 
@@ -372,6 +365,8 @@ class TiledMaps:
         self.kernel = np.zeros((1, 1), dtype=np.float32)
         if self.has_field:
             radius = max(int(np.ceil(max(field_radius_m, field_sigma_m) / self.res)), 1)
+            if radius + 1 >= (3 * TILE) // 4:
+                raise ConfigError("matcher.radius_m", f"must stay below {(3 * TILE) // 4 - 1} cells ({((3 * TILE) // 4 - 1) * self.res:g} m) at this resolution")
             self.kernel = gaussian_kernel(field_sigma_m / self.res, radius)
         cap = max(int(initial_tiles), 2)
         self.pool_lo = np.zeros((cap, TILE, TILE), dtype=np.float32)
@@ -452,7 +447,7 @@ class TiledMaps:
         self.ensure(px.min() - rmax, py.min() - rmax, px.max() + rmax, py.max() + rmax)
         x0, y0, inv = float(self.origin[0]), float(self.origin[1]), 1.0 / self.res
         need = np.zeros(len(which), dtype=np.int64)
-        count_fresh_tiles(self.table, self.ref, which, poses, pts, origin, x0, y0, inv, self.has_field, need)
+        count_fresh_tiles(self.table, self.ref, which, poses, pts, origin, x0, y0, inv, need)
         starts = np.concatenate([[0], np.cumsum(need)]).astype(np.int64)
         self._reserve(int(starts[-1]))
         used = np.zeros(len(which), dtype=np.int64)
