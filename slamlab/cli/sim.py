@@ -33,7 +33,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("out", type=Path, help="folder to create (must not exist unless --force)")
     p.add_argument("--force", action="store_true", help="replace OUT if it exists")
     p.add_argument("--calibration-dir", type=Path, default=None, help="real cameraParam/ folder for the Kinect numbers (default: built-in THOR values)")
+    from slamlab.datasets.sim.world import LAYOUTS
+
     for f in dataclasses.fields(SimParams):
+        if f.type in ("str", str):
+            choices = LAYOUTS if f.name == "layout" else None
+            p.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=str, default=f.default, choices=choices)
+            continue
         kind = _bool if f.type in ("bool", bool) else (int if f.type in ("int", int) else float)
         p.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=kind, default=f.default, metavar=kind.__name__.lstrip("_").upper())
     return p

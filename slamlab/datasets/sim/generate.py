@@ -40,6 +40,9 @@ from slamlab.geometry import wrap_angle
 # Bump whenever the generator's output changes for the same parameters: it is part of the
 # cache key, so stale cached sequences are never reused.
 SIM_VERSION = "3"  # 3: truth trajectory written by slamlab.artifacts.write_tum
+# The loops layout's own version, appended to SIM_VERSION for it (so bumping it leaves every
+# ring sequence's cache key alone). Bump whenever the loops world or route changes.
+LOOPS_VERSION = "1"
 T0_UNIX_S = 1426800000.0  # March 2015, like the course logs
 LIDAR_HZ = 40.0
 JOINT_HZ = 100.0
@@ -52,6 +55,7 @@ class SimParams:
     byte. `seed` is the dataset seed, independent of the SLAM filter's seed."""
 
     seed: int = 0
+    layout: str = "ring"  # "ring" (17 x 13.5 m, one corridor loop) | "loops" (40 x 30 m, figure-eight, 176 m; see world.py)
     duration_s: float = 85.0  # total, including the static start; one lap takes ~78 s
     stand_s: float = 2.5  # robot stands still at the start
     walk_speed_mps: float = 0.45
@@ -62,6 +66,10 @@ class SimParams:
     step_freq_hz: float = 1.6  # gait: body pitch at this, roll at half of it
     roll_amp_deg: float = 2.5
     pitch_amp_deg: float = 1.5
+    jerk_deg: float = 0.0  # occasional larger roll/pitch jerks up to this (0 = none)
+    jerk_every_s: float = 8.0  # mean time between jerks
+    neck_sweep_deg: float = 0.0  # neck yaw sweeps +- this (0 = only the occasional glances)
+    neck_sweep_period_s: float = 12.0
     range_noise_m: float = 0.01
     dropout_fraction: float = 0.005
     odom_scale_bias: float = 0.025  # odometry over-counts distance by 2.5 %
@@ -80,12 +88,34 @@ class SimParams:
     occupancy_res_m: float = 0.05
 
 
+# Knobs added after sequences were already cached: at their defaults they are left out of the
+# cache key and of sim.json, so every earlier configuration keeps its key and its bytes.
+OMITTED_AT_DEFAULT = ("layout", "jerk_deg", "jerk_every_s", "neck_sweep_deg", "neck_sweep_period_s")
+
+
+def params_record(params: SimParams) -> dict:
+    """The parameters as recorded in the cache key and sim.json: every field, except those of
+    OMITTED_AT_DEFAULT that are at their default."""
+    out = dataclasses.asdict(params)
+    defaults = {f.name: f.default for f in dataclasses.fields(SimParams)}
+    for name in OMITTED_AT_DEFAULT:
+        if out[name] == defaults[name]:
+            del out[name]
+    return out
+
+
+def sim_version(params: SimParams) -> str:
+    """The generator version recorded for these params: SIM_VERSION, plus LOOPS_VERSION for
+    the loops layout."""
+    return SIM_VERSION if params.layout == "ring" else f"{SIM_VERSION}+{params.layout}{LOOPS_VERSION}"
+
+
 def _cache_key(params: SimParams, calib: KinectCalibration) -> str:
     # The calibration's numbers, not its folder path, go into the key.
     blob = json.dumps(
         {
-            "version": SIM_VERSION,
-            "params": dataclasses.asdict(params),
+            "version": sim_version(params),
+            "params": params_record(params),
             "calib": [np.asarray(a, dtype=np.float64).round(12).tolist() for a in (calib.ir.fc, calib.ir.cc, calib.rgb.fc, calib.rgb.cc, calib.R, calib.T_mm)],
         },
         sort_keys=True,
@@ -95,12 +125,28 @@ def _cache_key(params: SimParams, calib: KinectCalibration) -> str:
 
 def _people(params: SimParams, world: World, t_rel: np.ndarray) -> np.ndarray:
     """(len(t), P, 4) cylinders [x, y, radius 0.25 m, height 1.75 m]: people pacing up and
-    down the corridor legs at 0.6-1.0 m/s, 0.9 m to the side of the robot's route."""
+    down the corridor legs at 0.6-1.0 m/s, 0.9 m to the side of the robot's route (ring), or
+    along a corridor between two junctions, 0.65 m to either side of its centre line (loops:
+    `World.lanes`; clear of the route and of everything standing in the corridor)."""
     p = params.n_people
     out = np.zeros((t_rel.size, p, 4))
     if p == 0:
         return out
     rng = np.random.default_rng([params.seed, 505])
+    if world.lanes:
+        for j in range(p):
+            (ax, ay), (bx, by) = world.lanes[int(rng.integers(0, len(world.lanes)))]
+            off = 0.65 * (1.0 if rng.random() < 0.5 else -1.0)
+            a = np.array([ax, ay]) + (np.array([0.0, off]) if ay == by else np.array([off, 0.0]))
+            b = a + np.array([bx - ax, by - ay])
+            length = float(np.linalg.norm(b - a))
+            speed = rng.uniform(0.6, 1.0)
+            s = (rng.uniform(0, 2 * length) + speed * t_rel) % (2 * length)
+            s = np.where(s > length, 2 * length - s, s) / length
+            out[:, j, :2] = a + s[:, None] * (b - a)
+            out[:, j, 2] = 0.25
+            out[:, j, 3] = 1.75
+        return out
     (x0, y0), (x1, y1) = world.loop_min, world.loop_max
     legs = [((x0, y0 - 0.9), (x1, y0 - 0.9)), ((x1 + 0.9, y0), (x1 + 0.9, y1)), ((x1, y1 + 0.9), (x0, y1 + 0.9)), ((x0 - 0.9, y1), (x0 - 0.9, y0))]
     for j in range(p):
@@ -113,6 +159,26 @@ def _people(params: SimParams, world: World, t_rel: np.ndarray) -> np.ndarray:
         out[:, j, 2] = 0.25
         out[:, j, 3] = 1.75
     return out
+
+
+def simulate_truth(params: SimParams) -> tuple[World, Motion, np.ndarray]:
+    """The world, the true motion on the fine 1 ms grid and the odometry (N, 3) on the same
+    grid, without rendering any sensor: what `generate_sequence` draws everything from."""
+    seed = params.seed
+    world = build_world(seed, n_clutter=params.n_clutter, texture_res_m=params.texture_res_m, scale=params.world_scale, layout=params.layout)
+    motion: Motion = simulate_motion(
+        seed, params.duration_s, world.loop_min, world.loop_max,
+        walk_speed_mps=params.walk_speed_mps, turn_rate_rps=np.deg2rad(params.turn_rate_dps), stand_s=params.stand_s,
+        step_freq_hz=params.step_freq_hz, roll_amp_deg=params.roll_amp_deg, pitch_amp_deg=params.pitch_amp_deg,
+        waypoints=world.route, jerk_deg=params.jerk_deg, jerk_every_s=params.jerk_every_s,
+        neck_sweep_deg=params.neck_sweep_deg, neck_sweep_period_s=params.neck_sweep_period_s,
+    )  # fmt: skip
+    odo_fine = simulate_odometry(
+        motion, seed, scale_bias=params.odom_scale_bias, yaw_drift_deg_per_min=params.odom_yaw_drift_deg_per_min,
+        yaw_bias_deg_per_m=params.odom_yaw_bias_deg_per_m, noise_m_per_sqrt_s=params.odom_noise_m_per_sqrt_s,
+        noise_deg_per_sqrt_s=params.odom_noise_deg_per_sqrt_s,
+    )  # fmt: skip
+    return world, motion, odo_fine
 
 
 def generate_sequence(folder: str | Path, params: SimParams = SimParams(), calibration_dir: str | Path | None = None) -> dict:
@@ -129,17 +195,7 @@ def generate_sequence(folder: str | Path, params: SimParams = SimParams(), calib
     truth_dir.mkdir(exist_ok=True)
     seed = params.seed
     calib = simcalib.sim_calibration(params.kinect_scale, calibration_dir)
-    world = build_world(seed, n_clutter=params.n_clutter, texture_res_m=params.texture_res_m, scale=params.world_scale)
-    motion: Motion = simulate_motion(
-        seed, params.duration_s, world.loop_min, world.loop_max,
-        walk_speed_mps=params.walk_speed_mps, turn_rate_rps=np.deg2rad(params.turn_rate_dps), stand_s=params.stand_s,
-        step_freq_hz=params.step_freq_hz, roll_amp_deg=params.roll_amp_deg, pitch_amp_deg=params.pitch_amp_deg,
-    )  # fmt: skip
-    odo_fine = simulate_odometry(
-        motion, seed, scale_bias=params.odom_scale_bias, yaw_drift_deg_per_min=params.odom_yaw_drift_deg_per_min,
-        yaw_bias_deg_per_m=params.odom_yaw_bias_deg_per_m, noise_m_per_sqrt_s=params.odom_noise_m_per_sqrt_s,
-        noise_deg_per_sqrt_s=params.odom_noise_deg_per_sqrt_s,
-    )  # fmt: skip
+    world, motion, odo_fine = simulate_truth(params)
     rng_imu = np.random.default_rng([seed, 606])
     imu_sigma = np.deg2rad(params.imu_noise_deg)
 
@@ -223,8 +279,8 @@ def generate_sequence(folder: str | Path, params: SimParams = SimParams(), calib
          "neck_yaw": s_joint["neck_yaw"], "head_pitch": s_joint["head_pitch"]},
     )  # fmt: skip
     summary = {
-        "sim_version": SIM_VERSION,
-        "params": dataclasses.asdict(params),
+        "sim_version": sim_version(params),
+        "params": params_record(params),
         "scans": int(n_scans),
         "rgbd_frames": int(n_rgbd),
         "depth_size": [calib.ir.width, calib.ir.height] if params.rgbd else None,
@@ -331,6 +387,10 @@ def _typed(key: str, kind: object, value: object) -> object:
     from slamlab.errors import ConfigError
 
     kind_name = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
+    if kind_name == "str":
+        if isinstance(value, str):
+            return value
+        raise ConfigError(f"dataset.{key}", f"must be a string, got {value!r}")
     if kind_name == "bool":
         if isinstance(value, bool):
             return value
@@ -348,16 +408,23 @@ def _typed(key: str, kind: object, value: object) -> object:
 
 def validate_params(p: SimParams) -> None:
     """Raise ConfigError (naming the `dataset.*` key) for impossible values."""
+    from slamlab.datasets.sim.world import LAYOUTS
     from slamlab.errors import ConfigError
 
+    scale_lo, scale_hi = (0.7, 2.0) if p.layout == "loops" else (0.85, 3.0)
     checks = [
+        ("layout", p.layout in LAYOUTS, f"must be one of {', '.join(LAYOUTS)}"),
         ("duration_s", p.duration_s > 0.5, "must be > 0.5 s"),
         ("stand_s", p.stand_s >= 0, "must be >= 0 s (longer than duration_s: the robot never moves)"),
         ("walk_speed_mps", 0 < p.walk_speed_mps <= 2.0, "must be in (0, 2] m/s"),
         ("turn_rate_dps", 0 < p.turn_rate_dps <= 180, "must be in (0, 180] deg/s"),
         ("n_clutter", p.n_clutter >= 0, "must be >= 0"),
-        ("world_scale", 0.85 <= p.world_scale <= 3.0, "must be in [0.85, 3] (the plan's rooms need room)"),
+        ("world_scale", scale_lo <= p.world_scale <= scale_hi, f"must be in [{scale_lo:g}, {scale_hi:g}] for layout {p.layout} (the plan's rooms need room)"),
         ("n_people", p.n_people >= 0, "must be >= 0"),
+        ("jerk_deg", 0 <= p.jerk_deg <= 20, "must be in [0, 20] deg"),
+        ("jerk_every_s", p.jerk_every_s > 0, "must be > 0 s"),
+        ("neck_sweep_deg", 0 <= p.neck_sweep_deg <= 90, "must be in [0, 90] deg"),
+        ("neck_sweep_period_s", p.neck_sweep_period_s > 0, "must be > 0 s"),
         ("range_noise_m", p.range_noise_m >= 0, "must be >= 0"),
         ("dropout_fraction", 0 <= p.dropout_fraction < 1, "must be in [0, 1)"),
         ("kinect_rate_hz", p.kinect_rate_hz > 0, "must be > 0"),
