@@ -89,3 +89,29 @@ def test_rbpf_final_map_is_the_best_particles_own_map():
     ys, xs = np.nonzero(occ)
     wx = img.origin_xy[0] + (xs + 0.5) * img.resolution_m
     assert wx.max() - wx.min() == pytest.approx(6.0, abs=0.4)
+
+
+def test_rbpf_step_scale_counts_reference_steps():
+    from slamlab.errors import ConfigError
+    from slamlab.slam.filters import RaoBlackwellFilter, SharedMapFilter
+
+    off = RaoBlackwellFilter()
+    assert off.step_scale(np.array([0.5, 0.0, 0.3])) == 1.0
+    f = RaoBlackwellFilter(step_ref_m=0.2, step_ref_rad=0.2, max_step_scale=4.0)
+    assert f.step_scale(np.array([0.1, 0.0, 0.0])) == pytest.approx(0.5)
+    assert f.step_scale(np.array([0.06, 0.08, 0.1])) == pytest.approx(1.0)
+    assert f.step_scale(np.array([5.0, 0.0, 0.0])) == 4.0  # capped
+    assert SharedMapFilter().step_scale(np.array([0.1, 0.0, 0.0])) == 1.0
+    with pytest.raises(ConfigError, match="filter.step_ref_rad"):
+        RaoBlackwellFilter(step_ref_m=0.2)
+    with pytest.raises(ConfigError, match="filter.step_ref_m"):
+        RaoBlackwellFilter(step_ref_m=-1.0, step_ref_rad=0.2)
+
+
+def test_rbpf_step_scale_flattens_the_weights():
+    """With half-size steps counted as half a reference step, the per-step weights are
+    flatter (higher N_eff) than when every step counts fully."""
+    seq = _room_sequence()
+    full = run_slam(seq, _cfg("filter=rbpf", "particles=20", "matcher=likelihood"))
+    half = run_slam(seq, _cfg("filter=rbpf", "particles=20", "matcher=likelihood", "filter.step_ref_m=0.06", "filter.step_ref_rad=1.0"))
+    assert half.steps["neff"].mean() > full.steps["neff"].mean()

@@ -200,7 +200,7 @@ def run_slam(
             if slam:
                 poses = c.motion.sample(poses, inc, rng)
                 if len(pts.xy):
-                    poses, scores = maps.match(c.matcher, poses, pts)
+                    poses, scores = maps.match(c.matcher, poses, pts, c.filter.step_scale(inc))
                     logw = c.weighting.update(logw, scores)
             else:
                 poses = se2_compose(poses, inc)

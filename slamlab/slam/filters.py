@@ -20,6 +20,7 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from slamlab.errors import ConfigError
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
 from slamlab.slam.grid import MapSettings, OccupancyGrid
@@ -32,8 +33,9 @@ class ParticleMaps(ABC):
     """The map(s) of N particles, as the engine sees them."""
 
     @abstractmethod
-    def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
-        """Scan-match every particle; returns (poses (N, 3), scores (N,))."""
+    def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints, step_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
+        """Scan-match every particle; returns (poses (N, 3), scores (N,)). `step_scale`: see
+        `FilterKind.step_scale`."""
 
     @abstractmethod
     def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
@@ -61,7 +63,7 @@ class SharedMap(ParticleMaps):
         self.grid = OccupancyGrid(settings, start_xy, sigma, radius)
         self.peak_mb = 0.0
 
-    def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
+    def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints, step_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
         return matcher.match(self.grid, poses, scan)
 
     def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
@@ -95,8 +97,9 @@ class PerParticleMaps(ParticleMaps):
         self._identical = True  # all particles hold the same map (at the start)
         self.peak_mb = 0.0
 
-    def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
-        return matcher.match_each(self.maps, poses, scan)
+    def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints, step_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
+        poses, scores = matcher.match_each(self.maps, poses, scan, prior_scale=step_scale)
+        return poses, scores * step_scale
 
     def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
         if len(scan.xy) == 0:
@@ -134,6 +137,10 @@ class FilterKind(ABC):
 
     name: str = ""
 
+    def step_scale(self, increment: FloatArray) -> float:
+        """How much one step counts (1 = fully): see `RaoBlackwellFilter`."""
+        return 1.0
+
     @abstractmethod
     def maps(self, settings: MapSettings, n: int, start_xy: tuple[float, float], matcher: Matcher | None) -> ParticleMaps:
         ...
@@ -149,9 +156,32 @@ class SharedMapFilter(FilterKind):
 
 
 class RaoBlackwellFilter(FilterKind):
-    """`filter=rbpf`: a map per particle in copy-on-write tiles (see module doc)."""
+    """`filter=rbpf`: a map per particle in copy-on-write tiles (see module doc).
+
+    `step_ref_m` / `step_ref_rad` (> 0, or null = off) make the filter independent of how
+    often it steps: a step of odometry length d and turn a counts
+    s = d / step_ref_m + |a| / step_ref_rad (capped at `max_step_scale`) reference steps.
+    Its match score enters the weight times s, and a matcher's motion prior allows s times
+    the variance. Without it, halving the step thresholds would count twice as many,
+    strongly overlapping scans per metre (over-confident weights, collapsing diversity)
+    under a prior that holds each step as tightly as a step twice as long."""
 
     name = "rbpf"
+
+    def __init__(self, step_ref_m: float | None = None, step_ref_rad: float | None = None, max_step_scale: float = 4.0) -> None:
+        from slamlab.slam._keys import require_positive
+
+        if (step_ref_m is None) != (step_ref_rad is None):
+            raise ConfigError("filter.step_ref_rad", "set step_ref_m and step_ref_rad together (or both null)")
+        self.step_ref_m = None if step_ref_m is None else require_positive("filter", "step_ref_m", step_ref_m)
+        self.step_ref_rad = None if step_ref_rad is None else require_positive("filter", "step_ref_rad", step_ref_rad)
+        self.max_step_scale = require_positive("filter", "max_step_scale", max_step_scale)
+
+    def step_scale(self, increment: FloatArray) -> float:
+        if self.step_ref_m is None or self.step_ref_rad is None:
+            return 1.0
+        s = float(np.hypot(increment[0], increment[1]) / self.step_ref_m + abs(increment[2]) / self.step_ref_rad)
+        return min(max(s, 1e-3), self.max_step_scale)
 
     def maps(self, settings: MapSettings, n: int, start_xy: tuple[float, float], matcher: Matcher | None) -> ParticleMaps:
         return PerParticleMaps(settings, n, start_xy, matcher)

@@ -192,8 +192,9 @@ class Matcher(ABC):
         ...
 
     @abstractmethod
-    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
-        ...
+    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
+        """`prior_scale` widens a motion prior's variance by that factor (the RBPF's step
+        normalisation); matchers without a prior ignore it."""
 
     def _finish(self, poses: FloatArray, best: FloatArray, scores: FloatArray) -> tuple[FloatArray, FloatArray]:
         if not self.move_to_best:
@@ -237,7 +238,7 @@ class GridMatcher(Matcher):
         )
         return self._finish(poses, best, scores)
 
-    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
+    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
         pts = np.ascontiguousarray(scan.xy[:: self.beam_step])
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
@@ -304,7 +305,7 @@ class LikelihoodFieldMatcher(Matcher):
         )
         return self._finish(poses, best, scores)
 
-    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
+    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
         assert maps.has_field, "maps built without a likelihood field"
         coarse = np.ascontiguousarray(scan.xy[:: self.coarse_beam_step])
         fine = np.ascontiguousarray(scan.xy[:: self.beam_step])
@@ -313,6 +314,6 @@ class LikelihoodFieldMatcher(Matcher):
         tiled_field_search(
             maps.pool_f, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, np.ascontiguousarray(poses), coarse, fine,
             self.offsets, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
-            self.kxy, self.kyaw, best, scores,
+            self.kxy / prior_scale, self.kyaw / prior_scale, best, scores,
         )
         return self._finish(poses, best, scores)
