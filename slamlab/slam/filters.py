@@ -98,7 +98,9 @@ class PerParticleMaps(ParticleMaps):
         self.peak_mb = 0.0
 
     def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints, step_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
-        poses, scores = matcher.match_each(self.maps, poses, scan, prior_scale=step_scale)
+        # the prior's sigma scales with the step (its variance with the square), as the
+        # motion model's noise scales with the increment
+        poses, scores = matcher.match_each(self.maps, poses, scan, prior_scale=step_scale**2)
         return poses, scores * step_scale
 
     def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
@@ -161,10 +163,12 @@ class RaoBlackwellFilter(FilterKind):
     `step_ref_m` / `step_ref_rad` (> 0, or null = off) make the filter independent of how
     often it steps: a step of odometry length d and turn a counts
     s = d / step_ref_m + |a| / step_ref_rad (capped at `max_step_scale`) reference steps.
-    Its match score enters the weight times s, and a matcher's motion prior allows s times
-    the variance. Without it, halving the step thresholds would count twice as many,
-    strongly overlapping scans per metre (over-confident weights, collapsing diversity)
-    under a prior that holds each step as tightly as a step twice as long."""
+    Its match score enters the weight times s, and a matcher's motion prior is s times as
+    wide (sigma; as the motion model's noise grows with the increment). Without it, halving
+    the step thresholds counts twice as many, strongly overlapping scans per metre
+    (over-confident weights, collapsing diversity) and lets the matcher move the robot
+    twice as far per metre (measured on ACES at 0.1 m / 0.1 rad: loops lost on 2 of 5
+    seeds)."""
 
     name = "rbpf"
 
