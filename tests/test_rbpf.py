@@ -91,16 +91,16 @@ def test_rbpf_final_map_is_the_best_particles_own_map():
     assert wx.max() - wx.min() == pytest.approx(6.0, abs=0.4)
 
 
-def test_rbpf_step_scale_counts_reference_steps():
+def test_rbpf_step_scale_narrows_the_prior_for_short_steps_only():
     from slamlab.errors import ConfigError
     from slamlab.slam.filters import RaoBlackwellFilter, SharedMapFilter
 
     off = RaoBlackwellFilter()
-    assert off.step_scale(np.array([0.5, 0.0, 0.3])) == 1.0
-    f = RaoBlackwellFilter(step_ref_m=0.2, step_ref_rad=0.2, max_step_scale=4.0)
+    assert off.step_scale(np.array([0.05, 0.0, 0.3])) == 1.0
+    f = RaoBlackwellFilter(step_ref_m=0.2, step_ref_rad=0.2)
     assert f.step_scale(np.array([0.1, 0.0, 0.0])) == pytest.approx(0.5)
-    assert f.step_scale(np.array([0.06, 0.08, 0.1])) == pytest.approx(1.0)
-    assert f.step_scale(np.array([5.0, 0.0, 0.0])) == 4.0  # capped
+    assert f.step_scale(np.array([0.03, 0.04, 0.05])) == pytest.approx(0.5)
+    assert f.step_scale(np.array([5.0, 0.0, 0.0])) == 1.0  # long steps keep the prior
     assert SharedMapFilter().step_scale(np.array([0.1, 0.0, 0.0])) == 1.0
     with pytest.raises(ConfigError, match="filter.step_ref_rad"):
         RaoBlackwellFilter(step_ref_m=0.2)
@@ -108,10 +108,11 @@ def test_rbpf_step_scale_counts_reference_steps():
         RaoBlackwellFilter(step_ref_m=-1.0, step_ref_rad=0.2)
 
 
-def test_rbpf_step_scale_flattens_the_weights():
-    """With half-size steps counted as half a reference step, the per-step weights are
-    flatter (higher N_eff) than when every step counts fully."""
+def test_rbpf_short_steps_keep_the_robot_closer_to_odometry():
+    """The room's odometry is 5 % long: a narrower prior (short steps against a long
+    reference) lets the matcher correct less per step, so the path stays nearer odometry."""
     seq = _room_sequence()
-    full = run_slam(seq, _cfg("filter=rbpf", "particles=20", "matcher=likelihood"))
-    half = run_slam(seq, _cfg("filter=rbpf", "particles=20", "matcher=likelihood", "filter.step_ref_m=0.06", "filter.step_ref_rad=1.0"))
-    assert half.steps["neff"].mean() > full.steps["neff"].mean()
+    free = run_slam(seq, _cfg("filter=rbpf", "particles=10", "matcher=likelihood"))
+    tight = run_slam(seq, _cfg("filter=rbpf", "particles=10", "matcher=likelihood", "filter.step_ref_m=3.0", "filter.step_ref_rad=30.0"))
+    dev = lambda r: np.abs(r.trajectory[:, :2] - r.odometry[:, :2]).max()  # noqa: E731
+    assert dev(tight) < dev(free)
