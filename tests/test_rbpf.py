@@ -21,6 +21,13 @@ COURSE_BEFORE = {
     "grid": ("3320f33e320d0a2a897061d43576db9425bdc60cfe6e304c22c8a4d789860369",
              "73dd19359711fbf686a082032a2cf9570ee24fd3e5d86d6e0e37d29dccc13a9f"),
 }
+# The same for the synthetic room of test_slam_engine (20 particles, seed 7): no data needed.
+COURSE_ROOM_BEFORE = {
+    "likelihood": ("75395fa8be128b067f53f3bc2def81ed6fd9283554662f217af99372c6abb19a",
+                   "7b86bb37b8e03b3607986ec521f9c6893be0b4ddda132a74c89a89d3f2ca57c2"),
+    "grid": ("dc171c338b20dabbe59e358fbfbd9c46f8133b72168fde16de7b7543497617aa",
+             "18f91070a0c585a3336fb288a1f2649a9e3c19b02dfa4b5517d487fd197a51cc"),
+}
 COURSE_KEYS = ("dataset=carmen", "dataset.path=unused", "particles=30", "steps.min_distance_m=0.2", "steps.min_angle_rad=0.2")
 
 
@@ -43,14 +50,33 @@ def test_course_filter_reproduces_the_trajectory_from_before_the_filter_group(sh
 
 
 @pytest.mark.parametrize("matcher", ["likelihood", "grid"])
+def test_course_filter_on_the_room_is_unchanged_and_is_what_old_configs_run(matcher):
+    from omegaconf import OmegaConf
+
+    seq = _room_sequence()
+    keys = ("particles=20", "seed=7", f"matcher={matcher}")
+    res = run_slam(seq, _cfg(*keys, "filter=course"))
+    assert (_sha(res.trajectory), _sha(res.log_odds.data)) == COURSE_ROOM_BEFORE[matcher]
+    # a config saved before the filter group existed has no `filter` key: it ran the course filter
+    old = _cfg(*keys)
+    OmegaConf.set_struct(old, False)
+    del old["filter"]
+    res_old = run_slam(seq, old)
+    assert res_old.extras["filter"] == "course"
+    assert res_old.trajectory.tobytes() == res.trajectory.tobytes()
+
+
+@pytest.mark.parametrize("matcher", ["likelihood", "grid"])
 def test_rbpf_same_seed_gives_identical_bytes_on_one_or_two_threads(matcher):
     seq = _room_sequence()
     cfg = _cfg("filter=rbpf", "particles=12", "seed=3", f"matcher={matcher}")
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("numba has one thread here (NUMBA_NUM_THREADS=1): nothing to compare")
     before = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
         a = run_slam(seq, cfg)
-        numba.set_num_threads(max(before, 2) if numba.config.NUMBA_NUM_THREADS >= 2 else 1)
+        numba.set_num_threads(2)
         b = run_slam(seq, cfg)
     finally:
         numba.set_num_threads(before)
@@ -71,24 +97,35 @@ def test_rbpf_beats_odometry_and_reports_its_maps():
     assert abs(np.hypot(*end_est[:2]) - true_len) < 0.5 * abs(np.hypot(*end_odo[:2]) - true_len)
     ex = res.extras
     assert ex["filter"] == "rbpf"
-    # 20 particles that diverge hold more than one map's worth of tiles, less than 20 maps'
-    assert 0 < ex["map_tiles"] <= ex["map_tiles_peak"]
+    # 20 particles that diverge hold more than one map's worth of tiles and at most 20 maps'
+    # (in this 6 x 4 m room every scan touches every tile, so each particle owns a full copy)
+    one = run_slam(seq, _cfg("filter=rbpf", "particles=1", "matcher=likelihood")).extras["map_tiles"]
+    assert one < ex["map_tiles"] <= 20 * one
+    assert ex["map_tiles"] <= ex["map_tiles_peak"]
     assert 0 < ex["map_mb"] <= ex["map_peak_mb"]
-    assert ex["map_tiles_copied"] > 0
+    assert ex["map_tiles_taken"] >= ex["map_tiles"]
 
 
 def test_rbpf_final_map_is_the_best_particles_own_map():
-    """The map handed back is the one built along the returned best particle's path: the
-    final particle's scan endpoints land on occupied cells of it."""
+    """The map handed back is exactly the one built along the returned (smoothed) path: a
+    single map replaying the scans at the processed steps from those poses equals it."""
+    from slamlab.slam.engine import validate_config
+    from slamlab.slam.scan import scan_to_points
+    from slamlab.slam.tiles import TiledMaps
+
     seq = _room_sequence()
-    res = run_slam(seq, _cfg("filter=rbpf", "particles=10", "matcher=grid", "seed=1"))
-    img = res.log_odds
-    occ = img.data > 0
-    assert occ.sum() > 50
-    # the room's walls (x = +-3, y = +-2 around the start at (-1.5, -0.5) in the odometry frame)
-    ys, xs = np.nonzero(occ)
-    wx = img.origin_xy[0] + (xs + 0.5) * img.resolution_m
-    assert wx.max() - wx.min() == pytest.approx(6.0, abs=0.4)
+    cfg = _cfg("filter=rbpf", "particles=10", "matcher=likelihood", "seed=1")
+    res = run_slam(seq, cfg)
+    assert res.resample_count > 0  # the best particle's map passed through resampling
+    c = validate_config(cfg)
+    steps = res.extras["step_scans"]
+    replay = TiledMaps(c.map, 1, tuple(res.trajectory[steps[0], :2]), c.matcher.field_sigma_m, c.matcher.field_radius_m)
+    for si in steps:
+        pts = scan_to_points(seq.scans[si], None, seq.min_range_m, seq.max_range_m, c.map.ground_threshold_m)
+        replay.insert_scan(res.trajectory[si].reshape(1, 3), pts.xy, pts.origin)
+    img = replay.to_image(0)
+    assert img.origin_xy == res.log_odds.origin_xy
+    assert np.array_equal(img.data, res.log_odds.data)
 
 
 def test_rbpf_step_scale_narrows_the_prior_for_short_steps_only():

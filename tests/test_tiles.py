@@ -55,11 +55,11 @@ def test_resampled_children_share_tiles_until_one_writes():
     assert np.array_equal(maps.table[0], maps.table[1])  # shared, not copied
     shared = maps.table[0][maps.table[0] != EMPTY]
     assert (maps.ref[shared] == 2).all()
-    copied = maps.tiles_copied
+    copied = maps.tiles_taken
     pts2, _ = _scan(rng)
     maps.insert_scan(np.array([[0.2, 0.1, -0.3]] * 3), pts2, origin, which=np.array([1]))
     # the child's write copied tiles: its table now differs where it wrote ...
-    assert maps.tiles_copied > copied
+    assert maps.tiles_taken > copied
     assert (maps.table[1] != maps.table[0]).any()
     # ... and neither its sibling (child 0 = the parent's map) nor child 2 changed
     assert np.array_equal(maps.dense(0), parent[0]) and np.array_equal(maps.dense(0, "field"), parent[1])
@@ -88,28 +88,47 @@ def test_shared_tiles_are_counted_once_in_memory():
 
 @pytest.mark.parametrize("field", [False, True])
 def test_tiles_hold_the_same_values_as_the_dense_grid(field):
-    """Random scans from random poses, crossing tile borders, with cells flipping both ways:
-    log-odds and the incrementally kept field equal the dense grid's (full recomputation
-    over the changed box) exactly."""
+    """Three particles updated together (in parallel) from their own random poses, resampled
+    now and then so children share tiles and then copy them, cells flipping both ways and a
+    field radius of 20 cells: every particle's log-odds and incrementally kept field equal
+    those of its own dense grid (full recomputation over the changed box), exactly."""
+    import copy
+
     rng = np.random.default_rng(3)
-    sigma, radius = (0.1, 0.3) if field else (0.0, 0.0)
-    dense = OccupancyGrid(SETTINGS, (0.0, 0.0), sigma, radius)
-    maps = TiledMaps(SETTINGS, 2, (0.0, 0.0), sigma, radius)
-    assert np.allclose(dense.origin, maps.origin)
-    for k in range(60):
-        pose = np.array([rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)])
-        pts, origin = _scan(rng, m=60, max_r=3.5)
-        dense.insert(points_to_world(origin.reshape(1, 2), pose)[0], points_to_world(pts, pose))
-        maps.insert_scan(np.stack([pose, pose + 1.0]), pts, origin, which=np.array([0]))
-    assert maps.grow_count == 0 and dense.grow_count == 0
-    H, W = dense.shape
-    assert np.array_equal(maps.dense(0)[:H, :W], dense.log_odds)
-    flips_both_ways = (dense.log_odds > 0).sum()
-    assert flips_both_ways > 100
+    sigma, radius = (0.3, 1.0) if field else (0.0, 0.0)
+    dense = [OccupancyGrid(SETTINGS, (0.0, 0.0), sigma, radius)]
+    maps = TiledMaps(SETTINGS, 3, (0.0, 0.0), sigma, radius)
     if field:
-        assert np.array_equal(maps.dense(0, "field")[:H, :W], dense.field)
-    # particle 1 never wrote: it still holds only the empty tile
-    assert (maps.table[1] == EMPTY).all()
+        assert maps.kernel.shape[0] // 2 == 20
+    assert np.allclose(dense[0].origin, maps.origin)
+    pts, origin = _scan(rng, m=60, max_r=3.5)
+    maps.insert_scan(np.zeros((3, 3)), pts, origin, which=np.array([0]))
+    maps.share_all_from(0)
+    dense[0].insert(origin, pts)
+    dense = [copy.deepcopy(dense[0]) for _ in range(3)]
+    freed = 0
+    for k in range(45):
+        poses = np.stack([rng.uniform(-1.5, 1.5, 3), rng.uniform(-1.5, 1.5, 3), rng.uniform(-np.pi, np.pi, 3)], axis=1)
+        pts, origin = _scan(rng, m=60, max_r=3.5)
+        for p in range(3):
+            before = dense[p].occupied()
+            dense[p].insert(points_to_world(origin.reshape(1, 2), poses[p])[0], points_to_world(pts, poses[p]))
+            freed += int((before & ~dense[p].occupied()).sum())
+        maps.insert_scan(poses, pts, origin)
+        if k % 10 == 9:
+            idx = np.array([0, 0, 1])
+            maps.resample(idx)
+            dense = [copy.deepcopy(dense[i]) for i in idx]
+    assert maps.grow_count == 0 and all(d.grow_count == 0 for d in dense)
+    assert freed > 20  # the recomputation path for cells that stopped being walls ran
+    H, W = dense[0].shape
+    for p in range(3):
+        assert np.array_equal(maps.dense(p)[:H, :W], dense[p].log_odds)
+        if field:
+            assert np.array_equal(maps.dense(p, "field")[:H, :W], dense[p].field)
+    # references are exact after all that
+    for t in np.unique(maps.table[maps.table != EMPTY]):
+        assert maps.ref[t] == (maps.table == t).sum()
 
 
 def test_growing_keeps_every_value_and_crops_the_image():
@@ -118,6 +137,8 @@ def test_growing_keeps_every_value_and_crops_the_image():
     pts, origin = _scan(rng)
     maps.insert_scan(np.zeros((1, 3)), pts, origin)
     img0 = maps.to_image(0)
+    field0 = maps.dense(0, "field").copy()
+    table_shape0, origin0 = maps.shape, maps.origin.copy()
     # far away in both directions: the table grows on every side
     maps.insert_scan(np.array([[30.0, -25.0, 0.0]]), pts, origin)
     maps.insert_scan(np.array([[-30.0, 25.0, 0.0]]), pts, origin)
@@ -131,4 +152,10 @@ def test_growing_keeps_every_value_and_crops_the_image():
     # the image is cropped to the box of written tiles, not the whole table
     rr, cc = np.nonzero(maps.table[0] != EMPTY)
     assert img.data.shape == ((np.ptp(rr) + 1) * TILE, (np.ptp(cc) + 1) * TILE)
-    assert img0.data.shape[0] < maps.shape[0] and img0.data.shape[1] < maps.shape[1]
+    assert img0.data.shape[0] < table_shape0[0] or img0.data.shape[1] < table_shape0[1]
+    # the whole field of before the growth is where it was, unchanged
+    oy = int(round((origin0[1] - maps.origin[1]) / RES))
+    ox = int(round((origin0[0] - maps.origin[0]) / RES))
+    H0, W0 = table_shape0
+    assert field0.max() > 0
+    assert np.array_equal(maps.dense(0, "field")[oy:oy + H0, ox:ox + W0], field0)

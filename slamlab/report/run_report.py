@@ -72,7 +72,9 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
     """A handful of headline numbers, the ones people compare first."""
     m = run.metrics
     out: list[tuple[str, str]] = []
-    if "filter" in m:
+    if m.get("mode") == "odometry":
+        out.append(("filter", "none (dead reckoning)"))
+    elif "filter" in m:
         out.append(("filter", f"{m['filter']}, {m.get('particles', '?')} particles"))
     traj = m.get("trajectory") if isinstance(m.get("trajectory"), dict) else {}
     if "rmse_m" in traj:

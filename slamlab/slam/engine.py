@@ -17,8 +17,9 @@ own path (its ancestry) is the smoothed trajectory. `mode: odometry` skips 1, 2 
 the map is built along the raw odometry (dead reckoning, for comparison).
 
 One `numpy.random.Generator(PCG64(seed))` drives all randomness; the numba kernels either
-run serial loops or (per-particle matching of `rbpf`) independent per-particle iterations,
-so the same config and seed give a bit-identical trajectory whatever the thread count.
+run serial loops or (`rbpf`: per-particle matching and map updates) independent
+per-particle iterations, so the same config and seed give a bit-identical trajectory
+whatever the thread count.
 """
 
 from __future__ import annotations

@@ -111,7 +111,7 @@ class PerParticleMaps(ParticleMaps):
         else:
             self.maps.insert_scan(poses, scan.xy, scan.origin)
         self._identical = False
-        self.peak_mb = max(self.peak_mb, self.maps.memory_mb())
+        self.peak_mb = max(self.peak_mb, self.maps.memory_mb(self.maps.peak_tiles))
 
     def resample(self, idx: np.ndarray) -> None:
         self.maps.resample(idx)
@@ -126,7 +126,7 @@ class PerParticleMaps(ParticleMaps):
             "map_peak_mb": self.peak_mb,
             "map_tiles": m.tiles_in_use,
             "map_tiles_peak": m.peak_tiles,
-            "map_tiles_copied": m.tiles_copied,
+            "map_tiles_taken": m.tiles_taken,
             "map_table_tiles": int(m.table.shape[1] * m.table.shape[2]),  # per particle, incl. empty
             "map_grow_count": m.grow_count,
         }

@@ -10,7 +10,8 @@ Two matchers (numba kernels, serial loops so results are bit-for-bit reproducibl
 With `move_to_best` the particle moves to its best offset; the score there is its
 correlation for the weighting either way.
 
-Adding a matcher: subclass `Matcher`, implement `match`, add `conf/matcher/NAME.yaml`.
+Adding a matcher: subclass `Matcher`, implement `match` (shared map, filter=course) and
+`match_each` (a map per particle, filter=rbpf), add `conf/matcher/NAME.yaml`.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import math
 import numba
 import numpy as np
 
+from slamlab.errors import ConfigError
 from slamlab.geometry import FloatArray, wrap_angle
 from slamlab.slam._keys import require_int, require_nonnegative, require_positive
 from slamlab.slam.grid import OccupancyGrid
@@ -191,10 +193,11 @@ class Matcher(ABC):
     def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
         ...
 
-    @abstractmethod
     def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
-        """`prior_scale` widens a motion prior's variance by that factor (the RBPF's step
-        normalisation); matchers without a prior ignore it."""
+        """Particle i against its own map i (filter=rbpf). `prior_scale` (<= 1) scales a
+        motion prior's variance (the RBPF's step normalisation); matchers without a prior
+        ignore it. A matcher that only implements `match` works with filter=course only."""
+        raise ConfigError("filter", f"{type(self).__name__} does not support filter=rbpf (no match_each)")
 
     def _finish(self, poses: FloatArray, best: FloatArray, scores: FloatArray) -> tuple[FloatArray, FloatArray]:
         if not self.move_to_best:

@@ -259,7 +259,7 @@ def count_fresh_tiles(table, ref, which, poses, pts, origin, ox, oy, inv_res, ou
     shared) among those within one tile of its beams.
 
     Why that bounds every write: each beam is sampled every half tile, so any point of it is
-    within a quarter tile of a sample; the cells the ray cast walks are within one cell of
+    within a quarter tile of a sample; the cells the ray cast walks are within 1.5 cells of
     the beam, and field writes within R cells of those, so with R + 1 < 3/4 TILE every
     written cell lies in a sample's tile or one of its 8 neighbours."""
     TH = table.shape[1]
@@ -356,6 +356,10 @@ class TiledMaps:
         initial_tiles: int = 256,
     ) -> None:
         self.s = settings
+        if settings.occupied_threshold < 0:
+            # unknown cells (log-odds 0, the empty tile) must read as free: the shared empty
+            # tile and the incremental field rely on it
+            raise ConfigError("map.occupied_threshold", f"must be >= 0 with filter=rbpf, got {settings.occupied_threshold:g}")
         self.res = settings.resolution_m
         self.n = int(n_maps)
         side = max(int(np.ceil(settings.initial_size_m / (self.res * TILE))), 1)
@@ -366,7 +370,7 @@ class TiledMaps:
         if self.has_field:
             radius = max(int(np.ceil(max(field_radius_m, field_sigma_m) / self.res)), 1)
             if radius + 1 >= (3 * TILE) // 4:
-                raise ConfigError("matcher.radius_m", f"must stay below {(3 * TILE) // 4 - 1} cells ({((3 * TILE) // 4 - 1) * self.res:g} m) at this resolution")
+                raise ConfigError("matcher.radius_m (or sigma_m)", f"must stay below {(3 * TILE) // 4 - 1} cells ({((3 * TILE) // 4 - 1) * self.res:g} m) at this resolution")
             self.kernel = gaussian_kernel(field_sigma_m / self.res, radius)
         cap = max(int(initial_tiles), 2)
         self.pool_lo = np.zeros((cap, TILE, TILE), dtype=np.float32)
@@ -374,7 +378,7 @@ class TiledMaps:
         self.ref = np.zeros(cap, dtype=np.int32)
         self.free = np.arange(1, cap, dtype=np.int32)  # tile ids no table refers to (not 0)
         self.peak_tiles = 0
-        self.tiles_copied = 0
+        self.tiles_taken = 0  # fresh tiles taken: copies of shared tiles or new ones
         self.grow_count = 0
 
     # ---- geometry -----------------------------------------------------------------------
@@ -437,6 +441,8 @@ class TiledMaps:
         if len(scan_xy) == 0:
             return
         which = np.arange(self.n, dtype=np.int64) if which is None else np.asarray(which, dtype=np.int64)
+        # a particle listed twice would be written by two threads at once
+        assert len(np.unique(which)) == len(which), "insert_scan: repeated particle index"
         poses = np.ascontiguousarray(poses, dtype=np.float64)
         pts = np.ascontiguousarray(scan_xy, dtype=np.float64)
         origin = np.ascontiguousarray(scan_origin, dtype=np.float64)
@@ -462,9 +468,10 @@ class TiledMaps:
             np.float32(s.log_odds_occupied), np.float32(s.log_odds_free), np.float32(s.clamp_min),
             np.float32(s.clamp_max), np.float32(s.occupied_threshold), self.kernel, rows, cols, flips,
         )
-        self.tiles_copied += int(used.sum())
+        # peak: before the recount frees the tiles the copies replaced, both are held
+        self.peak_tiles = max(self.peak_tiles, self.tiles_in_use + int(used.sum()))
+        self.tiles_taken += int(used.sum())
         self._recount()
-        self.peak_tiles = max(self.peak_tiles, self.tiles_in_use)
 
     def _scratch(self, n: int, m: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Reused work arrays for `insert_scans` (grown, never shrunk)."""
