@@ -5,6 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
+from slamlab.errors import ConfigError
 from slamlab.frames import ScanFrame
 from slamlab.geometry import rot_y, trans
 from slamlab.slam.grid import MapSettings, OccupancyGrid
@@ -249,3 +250,26 @@ def test_fill_between_steps_composes_odometry():
     est = np.array([[0, 0, np.pi / 2], [0, 2, np.pi / 2]], float)  # estimate turned by 90 deg
     full = fill_between_steps(np.array([0, 2]), est, odom)
     np.testing.assert_allclose(full[:, :2], [[0, 0], [0, 1], [0, 2], [0, 3]], atol=1e-12)
+
+
+def _spread_after(model: CourseMotion, step_m: float, total_m: float = 1.0, n: int = 20000) -> float:
+    rng = np.random.default_rng(0)
+    poses = np.zeros((n, 3))
+    for _ in range(int(round(total_m / step_m))):
+        poses = model.sample(poses, np.array([step_m, 0.0, 0.0]), rng)
+    return float(poses[:, 1].std())  # sideways spread (m)
+
+
+def test_course_motion_sqrt_growth_spreads_the_same_per_metre_whatever_the_step():
+    lin = CourseMotion(sigma_xy_m=0.02, sigma_theta_rad=0.0, per_distance_m=0.2)
+    sq = CourseMotion(sigma_xy_m=0.02, sigma_theta_rad=0.0, per_distance_m=0.2, growth="sqrt")
+    # one reference step: both give the configured sigma
+    assert _spread_after(sq, 0.2, 0.2) == pytest.approx(0.02, rel=0.03)
+    assert _spread_after(lin, 0.2, 0.2) == pytest.approx(0.02, rel=0.03)
+    # over 1 m: sqrt gives sigma * sqrt(1 / 0.2) at any step; linear shrinks with the step
+    want = 0.02 * np.sqrt(5.0)
+    assert _spread_after(sq, 0.1) == pytest.approx(want, rel=0.03)
+    assert _spread_after(sq, 0.05) == pytest.approx(want, rel=0.03)
+    assert _spread_after(lin, 0.1) == pytest.approx(want / np.sqrt(2), rel=0.03)
+    with pytest.raises(ConfigError, match="motion.growth"):
+        CourseMotion(growth="cubic")

@@ -14,6 +14,7 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from slamlab.errors import ConfigError
 from slamlab.geometry import FloatArray, se2_compose, wrap_angle
 from slamlab.slam._keys import require_nonnegative, require_positive
 
@@ -32,8 +33,12 @@ class CourseMotion(MotionModel):
     """The course model: Gaussian noise on (x m, y m, theta rad) in the robot frame.
 
     The standard deviations are the course's per-step values scaled by the size of the
-    increment: `sigma * (|u.xy| / per_distance_m + |u.theta| / per_angle_rad)`. So the
-    noise is zero when the robot stands still and grows with how far it moved or turned.
+    increment: `sigma * k` with `k = |u.xy| / per_distance_m + |u.theta| / per_angle_rad`
+    (`growth: linear`, the course's model). So the noise is zero when the robot stands still
+    and grows with how far it moved or turned. With `growth: sqrt` the deviation is
+    `sigma * sqrt(k)`: the variance grows linearly with the increment, as a random walk, so
+    the spread accumulated over a path does not depend on how often the filter steps (with
+    `linear`, halving the step halves the accumulated variance).
     """
 
     def __init__(
@@ -42,7 +47,11 @@ class CourseMotion(MotionModel):
         sigma_theta_rad: float = 0.0087,
         per_distance_m: float = 0.1,
         per_angle_rad: float = 0.1,
+        growth: str = "linear",
     ) -> None:
+        if growth not in ("linear", "sqrt"):
+            raise ConfigError(f"{GROUP}.growth", f"must be linear or sqrt, got {growth!r}")
+        self.growth = growth
         self.sigma_xy_m = require_nonnegative(GROUP, "sigma_xy_m", sigma_xy_m)
         self.sigma_theta_rad = require_nonnegative(GROUP, "sigma_theta_rad", sigma_theta_rad)
         self.per_distance_m = require_positive(GROUP, "per_distance_m", per_distance_m)
@@ -51,6 +60,8 @@ class CourseMotion(MotionModel):
     def sample(self, poses: FloatArray, increment: FloatArray, rng: np.random.Generator) -> FloatArray:
         u = np.asarray(increment, dtype=np.float64)
         scale = np.hypot(u[0], u[1]) / self.per_distance_m + abs(u[2]) / self.per_angle_rad
+        if self.growth == "sqrt":
+            scale = np.sqrt(scale)
         n = poses.shape[0]
         # Always draw the same number of variates so the random stream does not depend on
         # whether the robot moved (keeps runs comparable across configs).
