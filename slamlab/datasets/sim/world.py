@@ -98,6 +98,22 @@ def _wall_with_doors(a: tuple[float, float], b: tuple[float, float], doors: list
     return out
 
 
+def _random_clutter(rng: np.random.Generator, W: float, H: float) -> tuple[list[float], float, float, bool]:
+    """A random clutter box [x0, y0, x1, y1, height] (m) inside [0, W] x [0, H], its sizes
+    sx, sy (m), and whether it is a pillar (20 %). Half the other boxes are lower than the lidar plane (seen only with
+    the head pitched down)."""
+    pillar = rng.random() < 0.2
+    if pillar:
+        sx = sy = float(rng.uniform(0.2, 0.35))
+        h = WALL_HEIGHT_M
+    else:
+        sx, sy = (float(v) for v in rng.uniform(0.25, 0.55, size=2))
+        h = float(rng.uniform(0.3, 0.9)) if rng.random() < 0.5 else float(rng.uniform(1.6, 2.2))
+    x = float(rng.uniform(0.2, W - 0.2 - sx))
+    y = float(rng.uniform(0.2, H - 0.2 - sy))
+    return [x, y, x + sx, y + sy, h], sx, sy, pillar
+
+
 def _overlaps(box: list[float], others: list[list[float]], margin: float) -> bool:
     for o in others:
         if box[0] < o[2] + margin and box[2] > o[0] - margin and box[1] < o[3] + margin and box[3] > o[1] - margin:
@@ -160,17 +176,8 @@ def build_world(seed: int, n_clutter: int = 22, texture_res_m: float = 0.02, sca
     attempts = 0
     while len(clutter) < n_clutter and attempts < 5000:
         attempts += 1
-        pillar = rng.random() < 0.2
-        if pillar:
-            sx = sy = float(rng.uniform(0.2, 0.35))
-            h = WALL_HEIGHT_M
-        else:
-            sx, sy = (float(v) for v in rng.uniform(0.25, 0.55, size=2))
-            # Half the clutter is below the lidar plane (seen only with the head pitched down).
-            h = float(rng.uniform(0.3, 0.9)) if rng.random() < 0.5 else float(rng.uniform(1.6, 2.2))
-        x = float(rng.uniform(0.2, W - 0.2 - sx))
-        y = float(rng.uniform(0.2, H - 0.2 - sy))
-        box = [x, y, x + sx, y + sy, h]
+        box, sx, sy, pillar = _random_clutter(rng, W, H)
+        x, y = box[0], box[1]
         # Distance of the box from the route rectangle's centre line must exceed 0.85 m.
         in_ring = (ox0 < x + sx and x < ox1 and oy0 < y + sy and y < oy1) and not (
             bx0 < x and x + sx < bx1 and by0 < y and y + sy < by1
@@ -326,16 +333,7 @@ def _build_loops(seed: int, n_clutter: int, texture_res_m: float, scale: float) 
     attempts = 0
     while placed < n_clutter and attempts < 20000:
         attempts += 1
-        pillar = rng.random() < 0.2
-        if pillar:
-            sx = sy = float(rng.uniform(0.2, 0.35))
-            h = WALL_HEIGHT_M
-        else:
-            sx, sy = (float(v) for v in rng.uniform(0.25, 0.55, size=2))
-            h = float(rng.uniform(0.3, 0.9)) if rng.random() < 0.5 else float(rng.uniform(1.6, 2.2))
-        x = float(rng.uniform(0.2, W - 0.2 - sx))
-        y = float(rng.uniform(0.2, H - 0.2 - sy))
-        box = [x, y, x + sx, y + sy, h]
+        box, _sx, _sy, pillar = _random_clutter(rng, W, H)
         if min(_segment_distance(box, seg) for seg in corridors) < hw + 0.1:
             continue
         if _overlaps(box, walls, 0.05) or _overlaps(box, clutter, 0.3):
