@@ -23,10 +23,18 @@ import numpy as np
 from slamlab.errors import ConfigError
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
+from slamlab.slam._keys import require_positive
 from slamlab.slam.grid import MapSettings, OccupancyGrid
 from slamlab.slam.matcher import Matcher
 from slamlab.slam.scan import ScanPoints, points_to_world
 from slamlab.slam.tiles import TiledMaps
+
+
+def _field(matcher: Matcher | None) -> tuple[float, float]:
+    """(sigma m, radius m) of the likelihood field the matcher reads (0, 0: none)."""
+    if matcher is None:
+        return 0.0, 0.0
+    return matcher.field_sigma_m, matcher.field_radius_m
 
 
 class ParticleMaps(ABC):
@@ -58,9 +66,7 @@ class SharedMap(ParticleMaps):
     """One log-odds grid for all particles, updated from the best one (the course filter)."""
 
     def __init__(self, settings: MapSettings, start_xy: tuple[float, float], matcher: Matcher | None) -> None:
-        sigma = matcher.field_sigma_m if matcher is not None else 0.0
-        radius = matcher.field_radius_m if matcher is not None else 0.0
-        self.grid = OccupancyGrid(settings, start_xy, sigma, radius)
+        self.grid = OccupancyGrid(settings, start_xy, *_field(matcher))
         self.peak_mb = 0.0
 
     def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints, step_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
@@ -91,9 +97,7 @@ class PerParticleMaps(ParticleMaps):
     """A map per particle in shared copy-on-write tiles (the RBPF)."""
 
     def __init__(self, settings: MapSettings, n: int, start_xy: tuple[float, float], matcher: Matcher | None) -> None:
-        sigma = matcher.field_sigma_m if matcher is not None else 0.0
-        radius = matcher.field_radius_m if matcher is not None else 0.0
-        self.maps = TiledMaps(settings, n, start_xy, sigma, radius)
+        self.maps = TiledMaps(settings, n, start_xy, *_field(matcher))
         self._identical = True  # all particles hold the same map (at the start)
         self.peak_mb = 0.0
 
@@ -171,8 +175,6 @@ class RaoBlackwellFilter(FilterKind):
     name = "rbpf"
 
     def __init__(self, step_ref_m: float | None = None, step_ref_rad: float | None = None) -> None:
-        from slamlab.slam._keys import require_positive
-
         if (step_ref_m is None) != (step_ref_rad is None):
             raise ConfigError("filter.step_ref_rad", "set step_ref_m and step_ref_rad together (or both null)")
         self.step_ref_m = None if step_ref_m is None else require_positive("filter", "step_ref_m", step_ref_m)

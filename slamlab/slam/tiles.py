@@ -379,6 +379,9 @@ class TiledMaps:
         self.free = np.arange(1, cap, dtype=np.int32)  # tile ids no table refers to (not 0)
         self.peak_tiles = 0
         self.tiles_taken = 0  # fresh tiles taken: copies of shared tiles or new ones
+        # scratch of insert_scan: cells (2, particles, points) and flips (particles, K, 3)
+        self._rc = np.empty((2, 0, 0), dtype=np.int64)
+        self._fl = np.empty((0, 0, 3), dtype=np.int64)
         self.grow_count = 0
 
     # ---- geometry -----------------------------------------------------------------------
@@ -386,12 +389,6 @@ class TiledMaps:
     def shape(self) -> tuple[int, int]:
         """Cells (rows, cols) covered by the table."""
         return self.table.shape[1] * TILE, self.table.shape[2] * TILE
-
-    def cells(self, xy: FloatArray) -> tuple[np.ndarray, np.ndarray]:
-        """(rows, cols) int64 of world points (M, 2) m in table coordinates."""
-        c = np.floor((xy[:, 0] - self.origin[0]) / self.res).astype(np.int64)
-        r = np.floor((xy[:, 1] - self.origin[1]) / self.res).astype(np.int64)
-        return r, c
 
     def ensure(self, xmin: float, ymin: float, xmax: float, ymax: float) -> None:
         """Grow every table by whole tiles (plus `growth_margin_m`) so the box (m) fits with
@@ -475,13 +472,11 @@ class TiledMaps:
 
     def _scratch(self, n: int, m: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Reused work arrays for `insert_scans` (grown, never shrunk)."""
-        rc = getattr(self, "_rc", None)
-        if rc is None or rc.shape[1] < n or rc.shape[2] < m:
-            rc = self._rc = np.empty((2, n, m), dtype=np.int64)
-        fl = getattr(self, "_fl", None)
-        if fl is None or fl.shape[0] < n or fl.shape[1] < k:
-            fl = self._fl = np.empty((n, max(k, 2 * (fl.shape[1] if fl is not None else 0)), 3), dtype=np.int64)
-        return rc[0, :n, :m], rc[1, :n, :m], fl[:n]
+        if self._rc.shape[1] < n or self._rc.shape[2] < m:
+            self._rc = np.empty((2, n, m), dtype=np.int64)
+        if self._fl.shape[0] < n or self._fl.shape[1] < k:
+            self._fl = np.empty((n, max(k, 2 * self._fl.shape[1]), 3), dtype=np.int64)
+        return self._rc[0, :n, :m], self._rc[1, :n, :m], self._fl[:n]
 
     def share_all_from(self, p: int) -> None:
         """Every particle takes particle p's map (shared tiles, no cell copied)."""
