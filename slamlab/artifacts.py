@@ -170,6 +170,14 @@ def read_map(run_dir: Path) -> GridImage:
         return GridImage(z["data"], float(z["resolution_m"]), tuple(float(v) for v in z["origin_xy"]))
 
 
+def write_consistency(run_dir: Path, series: dict[str, np.ndarray]) -> None:
+    """consistency.csv: t (s), scan_index, hit_fraction of the scans the consistency score
+    replayed (slamlab.eval.consistency)."""
+    table = pd.DataFrame(series)
+    table["t"] = table["t"].map(lambda v: f"{v:.6f}")
+    write_text(Path(run_dir) / "consistency.csv", table.to_csv(index=False, float_format="%.6g"))
+
+
 def write_steps(run_dir: Path, steps: pd.DataFrame) -> None:
     """steps.csv (people, spreadsheets) and steps.parquet (typed, fast)."""
     run_dir = Path(run_dir)

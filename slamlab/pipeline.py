@@ -204,6 +204,7 @@ def run_pipeline(
     Returns the metrics dict (also written to metrics.json). User mistakes raise a
     SlamlabError; a failed run still writes metrics.json with status "failed" and the error.
     """
+    from slamlab.eval.consistency import consistency_metrics
     from slamlab.slam.engine import run_slam, validate_config
 
     run_dir = Path(run_dir)
@@ -212,7 +213,7 @@ def run_pipeline(
     t0 = time.perf_counter()
     try:
         require_values(cfg)
-        validate_config(cfg)
+        components = validate_config(cfg)
         seq = load_sequence(cfg.dataset)
         log.info("dataset %s: %d scans, %s RGB-D frames", seq.name, len(seq), seq.rgbd_count if seq.rgbd else "no")
         reporter = make_progress(progress, label="SLAM") if not callable(progress) else progress
@@ -222,6 +223,8 @@ def run_pipeline(
 
         metrics = filter_metrics(seq, result, cfg)
         metrics.update(accuracy_metrics(seq, result))
+        consistency, consistency_series = consistency_metrics(seq, result.trajectory, result.log_odds, components.map)
+        metrics["consistency"] = consistency
 
         # SLAM results first: whatever happens to texture afterwards, these are kept.
         artifacts.write_map(run_dir, result.log_odds)
@@ -231,6 +234,7 @@ def run_pipeline(
         if seq.ground_truth is not None:
             artifacts.write_tum(run_dir / "groundtruth.tum", result.times, seq.ground_truth.poses[: len(result.times)])
         artifacts.write_steps(run_dir, result.steps)
+        artifacts.write_consistency(run_dir, consistency_series)
 
         from slamlab.texture.pipeline import texture_enabled
 

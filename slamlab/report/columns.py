@@ -36,6 +36,10 @@ METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("map.agreement", "map agreement", "max"),
     MetricSpec("map.occupied_precision", "occ. precision", "max", table=False),
     MetricSpec("map.occupied_recall", "occ. recall", "max", table=False),
+    # self-consistency (no ground truth needed): slamlab.eval.consistency
+    MetricSpec("consistency.hit_fraction_mean", "scan hits on map", "max"),
+    MetricSpec("consistency.hit_fraction_p10", "scan hits p10", "max", table=False),
+    MetricSpec("consistency.conflict_fraction", "wall conflicts", "min"),
     MetricSpec("runtime_s", "runtime (s)", "min"),
     MetricSpec("total_runtime_s", "total runtime (s)", "min"),
     MetricSpec("scans_per_s", "scans/s", "max"),

@@ -21,6 +21,7 @@ matplotlib.use("Agg")  # reports are built headless (callbacks, CI); never open 
 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from slamlab.report.rundir import LogOddsMap, Trajectory  # noqa: E402
@@ -203,6 +204,25 @@ def weight_and_time_plot(steps) -> str:
     a2.set_ylabel("step time (ms)")
     a2.set_xlabel("time since first step (s)")
     a2.grid(alpha=0.3)
+    return fig_to_data_uri(fig)
+
+
+def consistency_plot(series) -> str:
+    """Per-scan hit fraction of the consistency replay over time, with a rolling median:
+    a drop marks where the map broke (slamlab.eval.consistency)."""
+    fig, ax = plt.subplots(figsize=(9.0, 2.8))
+    t = step_times(series)
+    y = series["hit_fraction"].to_numpy(dtype=float)
+    ax.plot(t, y, lw=0.5, color="#7f7f7f", alpha=0.6, label="per scan")
+    if y.size:
+        win = max(1, y.size // 40)
+        smooth = pd.Series(y).rolling(win, center=True, min_periods=1).median().to_numpy()
+        ax.plot(t, smooth, lw=1.4, color="#1f77b4", label=f"rolling median ({win} scans)")
+    ax.set_ylim(0.0, 1.02)
+    ax.set_ylabel("scan hits on map")
+    ax.set_xlabel("time since first scan (s)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower left", fontsize=8)
     return fig_to_data_uri(fig)
 
 

@@ -11,6 +11,7 @@ import shlex
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 import yaml
 
 from slamlab.report import figures
@@ -84,6 +85,9 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
     rel = m.get("relations") if isinstance(m.get("relations"), dict) else {}
     if "trans_abs_mean_m" in rel:
         out.append(("rel. translation error (m)", fmt_number(rel["trans_abs_mean_m"])))
+    cons = m.get("consistency") if isinstance(m.get("consistency"), dict) else {}
+    if "hit_fraction_mean" in cons:
+        out.append(("scan hits on map / wall conflicts", f"{fmt_number(cons['hit_fraction_mean'])} / {fmt_number(cons.get('conflict_fraction', float('nan')))}"))
     for key, label in (("runtime_s", "filter runtime (s)"), ("scans_per_s", "scans/s"),
                        ("realtime_factor", "× real time"), ("peak_memory_mb", "peak memory (MB)"),
                        ("resample_count", "resamples"), ("neff_mean", "mean N_eff")):
@@ -157,6 +161,13 @@ def render_run_report(run: RunDir) -> str:
             f"{len(steps)} filter steps; resampled {n_res} times (▼). No threshold line: {thr_src}."
         )
 
+    consistency_img = None
+    cons_path = run.file("consistency.csv")
+    if cons_path is not None:
+        series = pd.read_csv(cons_path)
+        if len(series):
+            consistency_img = figures.consistency_plot(series)
+
     cmd, exact = rerun_commands(run)
     man = run.manifest
     info: list[tuple[str, str]] = []
@@ -203,6 +214,7 @@ def render_run_report(run: RunDir) -> str:
         neff_img=neff_img,
         neff_note=neff_note,
         weight_img=weight_img,
+        consistency_img=consistency_img,
         metric_sections=_metric_sections(run.metrics),
         info=info,
         rerun_cmd=cmd,

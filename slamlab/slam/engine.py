@@ -43,7 +43,7 @@ from slamlab.slam.matcher import Matcher
 from slamlab.slam.motion import MotionModel
 from slamlab.slam.resample import Resampler
 from slamlab.slam.result import SlamResult
-from slamlab.slam.scan import scan_to_points
+from slamlab.slam.scan import range_limits, scan_to_points
 from slamlab.slam.steps import fill_between_steps, select_steps
 from slamlab.slam.weighting import Weighting, effective_sample_size
 
@@ -177,8 +177,7 @@ def run_slam(
     n = c.particles if slam else 1
 
     ms = c.map
-    min_r = ms.min_range_m if ms.min_range_m is not None else sequence.min_range_m
-    max_r = ms.max_range_m if ms.max_range_m is not None else sequence.max_range_m
+    min_r, max_r = range_limits(ms, sequence)
     start = odom[step_scans[0]].copy()
     maps = c.filter.maps(ms, n, (start[0], start[1]), c.matcher if slam else None)
     rng = np.random.Generator(np.random.PCG64(c.seed))

@@ -14,11 +14,15 @@ the floor is below `ground_threshold_m` (they hit the ground, not a wall).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from slamlab.frames import ScanFrame
+from slamlab.frames import ScanFrame, Sequence
 from slamlab.geometry import FloatArray, body_to_world
+
+if TYPE_CHECKING:
+    from slamlab.slam.grid import MapSettings
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,6 +57,14 @@ def scan_to_points(
     if body_height_m is not None:
         pts = pts[pts[:, 2] > ground_threshold_m]
     return ScanPoints(xy=np.ascontiguousarray(pts[:, :2]), origin=T[:2, 3].copy())
+
+
+def range_limits(settings: MapSettings, sequence: Sequence) -> tuple[float, float]:
+    """(min, max) beam range (m) a run uses: the map settings' own limits where set
+    (`map.min_range_m` / `map.max_range_m`), else the sequence's sensor limits."""
+    lo = settings.min_range_m if settings.min_range_m is not None else sequence.min_range_m
+    hi = settings.max_range_m if settings.max_range_m is not None else sequence.max_range_m
+    return float(lo), float(hi)
 
 
 def points_to_world(points_xy: FloatArray, pose: FloatArray) -> FloatArray:
