@@ -8,6 +8,8 @@ world `+experiment=sim_loops`, and the budgets, as tables.
   path. Budget: worst run <= 0.030 m (Intel), <= 0.050 m (ACES).
 - sim_loops: the preset's filter on seeds 0-2 (budget: worst ATE RMSE <= 0.10 m), a
   `particles` sweep (10, 100; the preset is 30) with filter=rbpf, and filter=course beside it.
+- hospital: the Freiburg hospital log (fr-clinic, no relations) with the same preset, alone:
+  wall, CPU, scans/s, peak memory, map MB and the consistency score (the scale issue's row).
 - timing: one quiet, whole `slamlab +experiment=lidar2d` process per log, run alone: wall,
   CPU (user + system, both cores), peak resident memory of the process, map MB at the end
   and at peak. Budget (Intel): <= 40 s wall, <= 1 GB. GMapping on this machine: 57 s, 129 MB.
@@ -134,25 +136,44 @@ def timing(out: Path) -> None:
         rows.append({"log": log, "filter": m.get("filter"), "particles": m.get("particles"), "steps": m.get("processed_steps"),
                      "wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s"), "filter_s": m.get("runtime_s"),
                      "peak_mb": m.get("peak_memory_mb"), "map_mb_end": mm.get("map_mb"), "map_mb_peak": mm.get("map_peak_mb"),
-                     "causal_m": m.get("relations", {}).get("causal", {}).get("trans_abs_mean_m")})
+                     "causal_m": m.get("relations", {}).get("causal", {}).get("trans_abs_mean_m"),
+                     "scan_hits": m.get("consistency", {}).get("hit_fraction_mean"),
+                     "wall_conflicts": m.get("consistency", {}).get("conflict_fraction")})
     print("\n## timing: whole processes, one at a time (budget Intel <= 40 s, <= 1 GB; GMapping 57 s, 129 MB)")
     print(pd.DataFrame(rows).to_string(index=False, float_format=lambda v: f"{v:.3f}"))
 
 
+def hospital(out: Path) -> None:
+    """The scale issue's row: the Freiburg hospital log (no relations) with the robust preset,
+    alone on the machine; consistency is the only accuracy figure it has."""
+    d = data_dir()
+    m = slamlab(["+experiment=lidar2d", f"dataset.path={d / 'carmen' / 'fr-clinic_robotlaser.clf.bz2'}"], out / "timing-hospital")
+    mm, c = m.get("map_memory", {}), m.get("consistency", {})
+    row = {"log": "fr-clinic", "filter": m.get("filter"), "particles": m.get("particles"), "scans": m.get("scans"),
+           "wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s"), "scans_per_s_wall": m.get("scans", 0) / max(m.get("wall_s", 1e-9), 1e-9),
+           "peak_mb": m.get("peak_memory_mb"), "map_mb_end": mm.get("map_mb"), "map_mb_peak": mm.get("map_peak_mb"),
+           "scan_hits": c.get("hit_fraction_mean"), "scan_hits_p10": c.get("hit_fraction_p10"),
+           "wall_conflicts": c.get("conflict_fraction"), "status": m.get("status", "?")}
+    print("\n## hospital (fr-clinic, 6,917 scans, 80 min): budget <= 60 s wall, <= 1 GB peak (stretch 400 MB)")
+    print(pd.DataFrame([row]).to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", default="lidar2d,sim_loops,timing")
+    ap.add_argument("--only", default="lidar2d,sim_loops,timing", help="comma list of lidar2d, sim_loops, timing, hospital")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seeds", type=int, default=5, help="lidar2d seeds (sim_loops uses 3)")
     ap.add_argument("--out", type=Path, default=None, help="keep the run folders here")
     args = ap.parse_args()
-    if data_dir() is None and ("lidar2d" in args.only or "timing" in args.only):
+    if data_dir() is None and any(p in args.only for p in ("lidar2d", "timing", "hospital")):
         raise SystemExit("shared data not found: set SLAMLAB_DATA_DIR")
     with tempfile.TemporaryDirectory(prefix="slamlab-bench-") as tmp:
         out = args.out or Path(tmp)
         parts = args.only.split(",")
         if "timing" in parts:
             timing(out)
+        if "hospital" in parts:
+            hospital(out)
         if "lidar2d" in parts:
             lidar2d(out, args.jobs, range(args.seeds))
         if "sim_loops" in parts:
