@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from slamlab.report import figures
+from slamlab.report import figures, particle_sections
 from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
 from slamlab.report.rundir import REPORT_FILE, TEXTURE_FILES, RunDir, flatten, load_run
 
@@ -74,6 +74,8 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
     out: list[tuple[str, str]] = []
     if m.get("mode") == "odometry":
         out.append(("filter", "none (dead reckoning)"))
+    elif m.get("mode") == "predict":
+        out.append(("filter", f"prediction only, {m.get('particles', '?')} particles"))
     elif "filter" in m:
         out.append(("filter", f"{m['filter']}, {m.get('particles', '?')} particles"))
     traj = m.get("trajectory") if isinstance(m.get("trajectory"), dict) else {}
@@ -88,6 +90,9 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
                        ("realtime_factor", "× real time"), ("peak_memory_mb", "peak memory (MB)"),
                        ("resample_count", "resamples"), ("neff_mean", "mean N_eff")):
         if key in m:
+            out.append((label, fmt_number(m[key])))
+    for key, label in (("weighting_overflows", "weight overflows"), ("weighting_underflows", "weight underflows")):
+        if m.get(key):
             out.append((label, fmt_number(m[key])))
     mem = m.get("map_memory") if isinstance(m.get("map_memory"), dict) else {}
     if "map_mb" in mem:
@@ -112,8 +117,10 @@ def rerun_commands(run: RunDir) -> tuple[str, str | None]:
 def render_run_report(run: RunDir) -> str:
     """The report page of one loaded run, as HTML text."""
     m = run.load_map()
+    mode = run.metrics.get("mode", "slam")
     trajs = {
-        "slam": run.load_trajectory("slam"),
+        # dead reckoning's estimate is the odometry itself; prediction's is one random particle
+        "slam": run.load_trajectory("slam") if mode not in ("odometry", "predict") else None,
         "odometry": run.load_trajectory("odometry"),
         "groundtruth": run.load_trajectory("groundtruth"),
     }
@@ -128,6 +135,9 @@ def render_run_report(run: RunDir) -> str:
             + (f", {m.data.shape[1]}×{m.data.shape[0]} cells of {m.resolution_m:g} m" if m is not None else "")
             + ". Paths: " + ", ".join(shown) + "; ○ start, ■ end."
             + (" No ground truth for this dataset." if missing else "")
+            + (" Dead reckoning: the estimate is the odometry, and the map is built along it." if mode == "odometry" else "")
+            + (" Prediction only: the map is built along particle 0's path (no particle is better than another);"
+               " every particle's path is drawn below." if mode == "predict" else "")
         )
 
     textures = []
@@ -203,6 +213,10 @@ def render_run_report(run: RunDir) -> str:
         neff_img=neff_img,
         neff_note=neff_note,
         weight_img=weight_img,
+        first_scan=particle_sections.first_scan_section(run),
+        predict=particle_sections.predict_section(run),
+        weights=particle_sections.weights_section(run),
+        weighting_notice=particle_sections.weighting_notice(run),
         metric_sections=_metric_sections(run.metrics),
         info=info,
         rerun_cmd=cmd,

@@ -284,7 +284,9 @@ def param_plots(df: pd.DataFrame, swept: Sequence[str], metric_keys: Sequence[st
     for p in params:
         vals = [v for v in ok[p].tolist()]
         numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals)
-        cats = None if numeric else sorted({str(v) for v in vals})
+        # categories in run order: a sweep lists its values in the order the user chose
+        # (e.g. the ladder's steps), which says more than the alphabet
+        cats = None if numeric else list(dict.fromkeys(str(v) for v in vals))
         xmap = (lambda v: float(v)) if numeric else (lambda v, c=cats: float(c.index(str(v))))
         others = [k for k in params if k != p]
         groups = _config_groups(ok, others)[:MAX_SERIES]
