@@ -135,9 +135,10 @@ def accuracy_metrics(seq: Sequence, result: SlamResult) -> dict:
     if gt is not None:
         from slamlab.eval.trajectory import map_agreement, trajectory_errors
 
-        # one scan (the ladder's first step) starts at the true pose: its "error" is 0 by
-        # construction and would rank it best in a sweep, so a trajectory needs two poses
-        if n >= 2:
+        # one processed scan (the ladder's first step) sits at the true start pose: its
+        # "error" is 0 by construction and would rank it best in a sweep, so accuracy needs
+        # at least two processed steps
+        if int(result.extras.get("processed_steps", n)) >= 2:
             truth = gt.poses[:n]
             traj = trajectory_errors(result.trajectory, truth)
             causal = trajectory_errors(result.causal, truth)

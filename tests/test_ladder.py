@@ -61,7 +61,9 @@ def _run(tmp_path: Path, sim_cache: Path, *overrides: str) -> tuple[Path, dict]:
 
 def test_first_scan_map_holds_exactly_that_scans_hits_and_free_cells(tmp_path, sim_cache):
     run_dir, m = _run(tmp_path, sim_cache, "+experiment=ladder_first_scan", SHORT_SIM)
-    assert m["processed_steps"] == 1 and m["scans"] == 1
+    # the first processed scan is the last one before the robot moves (scan 100); the run stops there
+    assert m["processed_steps"] == 1 and m["scans"] == pd.read_csv(run_dir / "steps.csv")["scan_index"].iloc[0] + 1
+    assert "trajectory" not in m  # nothing to score: it sits at the true start pose
     with np.load(run_dir / "first_scan.npz") as z:
         pts, sensor = z["points_xy"], z["sensor_xy"]
     grid = artifacts.read_map(run_dir)
@@ -218,7 +220,8 @@ def test_linear_exp_overflow_on_thor_scans_is_counted_and_reported(tmp_path, sim
 # ---------------------------------------------------------------- config and the sweep preset
 
 
-@pytest.mark.parametrize("override, key", [("record.particles=sometimes", "record.particles"), ("mode=replay", "mode")])
+@pytest.mark.parametrize("override, key", [("record.particles=sometimes", "record.particles"), ("mode=replay", "mode"),
+                                           ("steps.max_steps=0", "steps.max_steps")])
 def test_bad_ladder_values_name_the_key(override, key):
     with pytest.raises(ConfigError) as e:
         validate_config(make_cfg(override))
@@ -242,6 +245,7 @@ def test_ladder_sweep_runs_every_step_into_one_report(tmp_path, sim_cache):
         assert m["status"] == "ok"
         modes[i] = (m["mode"], m["particles"], m["processed_steps"])
     assert modes[0] == ("odometry", 1, 1)
+    assert "trajectory" not in json.loads((sweep / "0" / "metrics.json").read_text())
     assert modes[1][:2] == ("odometry", 1) and modes[2][:2] == ("predict", 100)
     assert modes[3][:2] == ("slam", 3) and modes[4][:2] == ("slam", 100)
     page = (sweep / "report.html").read_text()

@@ -73,6 +73,7 @@ class Components:
     min_angle_rad: float
     skip_static_start: bool
     max_scans: int | None
+    max_steps: int | None
     motion: MotionModel
     weighting: Weighting
     resampler: Resampler
@@ -145,6 +146,7 @@ def validate_config(cfg: DictConfig) -> Components:
         min_angle_rad=_float(cfg, "steps.min_angle_rad", 0.0),
         skip_static_start=skip,
         max_scans=_int(cfg, "steps.max_scans", 1, default=None, allow_none=True),
+        max_steps=_int(cfg, "steps.max_steps", 1, default=None, allow_none=True),
         motion=build_component(cfg, "motion", MotionModel),  # type: ignore[arg-type]
         weighting=build_component(cfg, "weighting", Weighting),  # type: ignore[arg-type]
         resampler=build_component(cfg, "resampler", Resampler),  # type: ignore[arg-type]
@@ -180,7 +182,8 @@ def run_slam(
 
     `progress(scans_done, scans_total)` is called after every processed step (scans between
     steps count as done: the progress bar shows scans, the log's unit).
-    Returns one pose per scan (the first `steps.max_scans` scans when set)."""
+    Returns one pose per scan (the first `steps.max_scans` scans when set; with
+    `steps.max_steps`, the scans up to the last processed step)."""
     c = validate_config(cfg)
     scans = sequence.scans if c.max_scans is None else sequence.scans[: c.max_scans]
     if not scans:
@@ -188,6 +191,10 @@ def run_slam(
     times = np.array([s.t for s in scans], dtype=np.float64)
     odom = np.array([s.odom for s in scans], dtype=np.float64).reshape(-1, 3)
     step_scans = select_steps(odom, c.every, c.min_distance_m, c.min_angle_rad, c.skip_static_start)
+    if c.max_steps is not None and len(step_scans) > c.max_steps:
+        # the run ends at its last processed scan (max_steps=1: the first scan's map alone)
+        step_scans = step_scans[: c.max_steps]
+        scans, times, odom = scans[: step_scans[-1] + 1], times[: step_scans[-1] + 1], odom[: step_scans[-1] + 1]
     n_steps = len(step_scans)
     slam = c.mode == "slam"
     n = 1 if c.mode == "odometry" else c.particles
