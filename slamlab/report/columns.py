@@ -20,6 +20,7 @@ class MetricSpec:
     label: str
     better: str | None
     table: bool = True  # False: kept in runs.csv and the run report, left out of the wide HTML table
+    hide_when_zero: bool = False  # a warning count: in the HTML table only when some run has one
 
 
 # Order = column order in the sweep table.
@@ -46,6 +47,9 @@ METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("resample_count", "resamples", None),
     MetricSpec("neff_mean", "N_eff mean", None),
     MetricSpec("neff_min", "N_eff min", None),
+    # linear-space weightings: updates that fell back to uniform weights (weighting=linear_exp, linear)
+    MetricSpec("weighting_overflows", "weight overflows", "min", hide_when_zero=True),
+    MetricSpec("weighting_underflows", "weight underflows", "min", hide_when_zero=True),
 )
 METRIC_BY_KEY = {m.key: m for m in METRICS}
 

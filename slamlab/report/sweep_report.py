@@ -202,7 +202,8 @@ def _rel_href(target: Path, out_dir: Path) -> str:
 
 def html_table(df: pd.DataFrame, runs: Sequence[RunDir], swept: Sequence[str], out_dir: Path) -> tuple[Table, list[str]]:
     """The every-run table with links, sort keys and best marks; returns it and the metric keys shown."""
-    metric_keys = [m.key for m in METRICS if m.table and df[m.key].notna().any()]
+    metric_keys = [m.key for m in METRICS if m.table and df[m.key].notna().any()
+                   and not (m.hide_when_zero and (df[m.key].fillna(0) == 0).all())]
     has_err = any(not r.ok for r in runs)
     cols = [Column("run", True, "run directory (links to its report)"), Column("status", True)]
     cols += [Column(k, False, "swept parameter") for k in swept]

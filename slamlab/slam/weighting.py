@@ -75,16 +75,19 @@ class Weighting(ABC):
 
 
 def _uniform_fallback(scheme: Weighting, n: int, what: str, detail: str, count: int) -> FloatArray:
-    """Uniform log-weights after a failed linear-space update, with a warning (first time)
-    and a log line (every time). Uniform weights keep the filter alive (it loses its
-    history, like a forced resample) and the counts say so in metrics.json."""
+    """Uniform log-weights after a failed linear-space update, with a warning the first time
+    and a debug line after (on THOR scans linear_exp fails at every step; the engine logs the
+    totals). Uniform weights keep the filter alive (it loses its history, like a forced
+    resample) and the counts say so in metrics.json."""
     msg = (
         f"{type(scheme).__name__} {what}: {detail}; falling back to uniform weights "
         f"(occurrence {count}). Use weighting=logsumexp to avoid this."
     )
     if count == 1:
         warnings.warn(msg, WeightUnderflowWarning, stacklevel=3)
-    log.warning(msg)
+        log.warning(msg)
+    else:
+        log.debug(msg)
     return np.full(n, -np.log(n))
 
 
