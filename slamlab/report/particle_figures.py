@@ -8,6 +8,8 @@ Each `*_figure` function returns the matplotlib Figure (tests count what it draw
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pandas as pd
 from matplotlib.collections import LineCollection
@@ -91,7 +93,7 @@ def spread_figure(steps: pd.DataFrame) -> Figure:
     return fig
 
 
-def _time_to_distance(t: np.ndarray, d: np.ndarray):
+def _time_to_distance(t: np.ndarray, d: np.ndarray) -> tuple[Callable, Callable]:
     """Forward/inverse maps between time and distance for a secondary axis (monotone
     interpolation; the inverse uses unique distances since a standing robot repeats them)."""
     du, idx = np.unique(d, return_index=True)
@@ -117,7 +119,7 @@ def weights_figure(rec: ParticleRecord, first_steps: int = 100) -> Figure:
         ax.set_xlim(a, max(b - 1, a + 1))
         ax.set_ylim(0, 1)
         ax.set_ylabel("normalised weight")
-        ax.set_title(f"steps {a}-{b - 1}" + (" (all)" if (a, b) == (0, k) else ""), fontsize=9)
+        ax.set_title(f"steps {a}-{b - 1}" + (" (all)" if (a, b) == (0, k) else ""), fontsize=9, pad=12)
         ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8)
     axes[-1, 0].set_xlabel("filter step")
     fig.tight_layout()

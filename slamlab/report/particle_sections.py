@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from slamlab.report import particle_figures
 from slamlab.report.figures import fig_to_data_uri
@@ -66,7 +67,7 @@ def predict_section(run: RunDir) -> dict[str, Any] | None:
     return out
 
 
-def spread_rows(steps, marks_m: tuple[float, ...] = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)) -> list[list[str]]:
+def spread_rows(steps: pd.DataFrame, marks_m: tuple[float, ...] = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)) -> list[list[str]]:
     """Measured against expected spread at the first step past each distance mark (and the
     last step): [distance m, time s, measured m, expected m, ratio, measured °, expected °]."""
     d = steps["distance_m"].to_numpy(float)
