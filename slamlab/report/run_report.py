@@ -155,7 +155,7 @@ def render_run_report(run: RunDir) -> str:
     steps = run.load_steps()
     neff_img = weight_img = None
     neff_note = ""
-    if steps is not None and len(steps) and "neff" in steps:
+    if steps is not None and len(steps) > 1 and "neff" in steps:  # one step has no "over time"
         particles = run.particles
         thr, thr_src = neff_threshold(run.config, particles)
         neff_img = figures.neff_plot(steps, particles, thr)
@@ -212,6 +212,7 @@ def render_run_report(run: RunDir) -> str:
         textures=textures,
         neff_img=neff_img,
         neff_note=neff_note,
+        single_step=steps is not None and len(steps) == 1,
         weight_img=weight_img,
         first_scan=particle_sections.first_scan_section(run),
         predict=particle_sections.predict_section(run),
