@@ -37,6 +37,10 @@ METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("map.agreement", "map agreement", "max"),
     MetricSpec("map.occupied_precision", "occ. precision", "max", table=False),
     MetricSpec("map.occupied_recall", "occ. recall", "max", table=False),
+    # linear-space weightings: updates that fell back to uniform weights (weighting=linear_exp, linear),
+    # beside the accuracy they explain
+    MetricSpec("weighting_overflows", "weight overflows", "min", hide_when_zero=True),
+    MetricSpec("weighting_underflows", "weight underflows", "min", hide_when_zero=True),
     MetricSpec("runtime_s", "runtime (s)", "min"),
     MetricSpec("total_runtime_s", "total runtime (s)", "min"),
     MetricSpec("scans_per_s", "scans/s", "max"),
@@ -47,9 +51,6 @@ METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("resample_count", "resamples", None),
     MetricSpec("neff_mean", "N_eff mean", None),
     MetricSpec("neff_min", "N_eff min", None),
-    # linear-space weightings: updates that fell back to uniform weights (weighting=linear_exp, linear)
-    MetricSpec("weighting_overflows", "weight overflows", "min", hide_when_zero=True),
-    MetricSpec("weighting_underflows", "weight underflows", "min", hide_when_zero=True),
 )
 METRIC_BY_KEY = {m.key: m for m in METRICS}
 
