@@ -154,14 +154,12 @@ def write_map(run_dir: Path, grid: GridImage) -> None:
         f"occupied_thresh: {OCCUPIED_THRESH}\n"
         f"free_thresh: {FREE_THRESH}\n",
     )
-    with atomic_path(run_dir / "map_logodds.npz") as tmp:
-        with tmp.open("wb") as f:
-            np.savez_compressed(
-                f,
-                data=grid.data.astype(np.float32),
-                resolution_m=np.float64(grid.resolution_m),
-                origin_xy=np.asarray(grid.origin_xy, dtype=np.float64),
-            )
+    write_npz(
+        run_dir / "map_logodds.npz",
+        data=grid.data.astype(np.float32),
+        resolution_m=np.float64(grid.resolution_m),
+        origin_xy=np.asarray(grid.origin_xy, dtype=np.float64),
+    )
 
 
 def read_map(run_dir: Path) -> GridImage:
@@ -176,6 +174,13 @@ def write_consistency(run_dir: Path, series: dict[str, np.ndarray]) -> None:
     table = pd.DataFrame(series)
     table["t"] = table["t"].map(lambda v: f"{v:.6f}")
     write_text(Path(run_dir) / "consistency.csv", table.to_csv(index=False, float_format="%.6g"))
+
+
+def write_npz(path: Path, **arrays: np.ndarray) -> None:
+    """Atomically write compressed NumPy arrays (np.load reads them back by name)."""
+    with atomic_path(path) as tmp:
+        with tmp.open("wb") as f:
+            np.savez_compressed(f, **arrays)
 
 
 def write_steps(run_dir: Path, steps: pd.DataFrame) -> None:

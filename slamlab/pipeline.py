@@ -118,8 +118,10 @@ def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> dict:
         "neff_mean": float(np.nanmean(neff)),
         "neff_min": float(np.nanmin(neff)),
         "trajectory_fill": result.fill,
-        # linear weighting: steps where every weight underflowed and uniform weights took over
+        # linear / linear_exp weighting: steps where the weights underflowed (all 0) or
+        # overflowed (exp(corr) = inf) and uniform weights took over
         "weighting_underflows": int(result.extras.get("weighting_underflows", 0)),
+        "weighting_overflows": int(result.extras.get("weighting_overflows", 0)),
         # MB held by the map(s): shared tiles counted once (rbpf); at the end and at peak
         "map_memory": {k: v for k, v in result.extras.items() if k.startswith("map_")},
     }
@@ -133,17 +135,21 @@ def accuracy_metrics(seq: Sequence, result: SlamResult) -> dict:
     if gt is not None:
         from slamlab.eval.trajectory import map_agreement, trajectory_errors
 
-        truth = gt.poses[:n]
-        traj = trajectory_errors(result.trajectory, truth)
-        causal = trajectory_errors(result.causal, truth)
-        odom = trajectory_errors(result.odometry, truth)
-        traj.update(
-            causal_rmse_m=causal["rmse_m"],
-            causal_mean_m=causal["mean_m"],
-            odometry_rmse_m=odom["rmse_m"],
-            odometry_mean_m=odom["mean_m"],
-        )
-        out["trajectory"] = traj
+        # one processed scan (the ladder's first step) sits at the true start pose: its
+        # "error" is 0 by construction and would rank it best in a sweep, so accuracy needs
+        # at least two processed steps
+        if int(result.extras.get("processed_steps", n)) >= 2:
+            truth = gt.poses[:n]
+            traj = trajectory_errors(result.trajectory, truth)
+            causal = trajectory_errors(result.causal, truth)
+            odom = trajectory_errors(result.odometry, truth)
+            traj.update(
+                causal_rmse_m=causal["rmse_m"],
+                causal_mean_m=causal["mean_m"],
+                odometry_rmse_m=odom["rmse_m"],
+                odometry_mean_m=odom["mean_m"],
+            )
+            out["trajectory"] = traj
         if gt.occupancy is not None:
             out["map"] = map_agreement(result.log_odds, gt.occupancy)
     if seq.relations is not None:
@@ -168,6 +174,26 @@ def relations_within(relations: Relations, times: np.ndarray) -> Relations:
     if keep.all():
         return relations
     return Relations(relations.t1[keep], relations.t2[keep], relations.rel[keep], relations.path)
+
+
+def record_first_scan(cfg: DictConfig) -> bool:
+    """`record.first_scan`, checked (a bool)."""
+    v = OmegaConf.select(cfg, "record.first_scan", default=False)
+    if not isinstance(v, bool):
+        raise ConfigError("record.first_scan", f"must be true or false, got {v!r}")
+    return v
+
+
+def write_recordings(run_dir: Path, result: SlamResult, cfg: DictConfig) -> None:
+    """particles.npz and first_scan.npz, when `record.*` asks for them (docs/RUN_DIRECTORY.md)."""
+    h = result.particle_history
+    if h is not None:
+        step_scans = np.asarray(result.extras["step_scans"])
+        artifacts.write_npz(run_dir / "particles.npz", t=result.times[step_scans],
+                            poses=h.poses, weights=h.weights, parents=h.parents, resampled=h.resampled)
+    if record_first_scan(cfg) and result.first_scan_xy is not None:
+        artifacts.write_npz(run_dir / "first_scan.npz", points_xy=result.first_scan_xy,
+                            sensor_xy=np.asarray(result.first_scan_origin), pose=result.trajectory[int(result.extras["step_scans"][0])])
 
 
 def run_texture_stage(seq: Sequence, result: SlamResult, cfg: DictConfig, run_dir: Path) -> dict:
@@ -214,6 +240,7 @@ def run_pipeline(
     try:
         require_values(cfg)
         components = validate_config(cfg)
+        record_first_scan(cfg)
         seq = load_sequence(cfg.dataset)
         log.info("dataset %s: %d scans, %s RGB-D frames", seq.name, len(seq), seq.rgbd_count if seq.rgbd else "no")
         reporter = make_progress(progress, label="SLAM") if not callable(progress) else progress
@@ -235,6 +262,7 @@ def run_pipeline(
             artifacts.write_tum(run_dir / "groundtruth.tum", result.times, seq.ground_truth.poses[: len(result.times)])
         artifacts.write_steps(run_dir, result.steps)
         artifacts.write_consistency(run_dir, consistency_series)
+        write_recordings(run_dir, result, cfg)
 
         from slamlab.texture.pipeline import texture_enabled
 

@@ -27,6 +27,16 @@ def test_ok_run_loads_everything(tmp_path: Path) -> None:
     assert list(run.load_steps().columns)[:4] == ["step", "scan_index", "t", "neff"]
 
 
+def test_plain_override_wins_over_added_one(tmp_path: Path) -> None:
+    # a sweep preset (+experiment=ladder) whose sweeper picks experiment=X per job ran X,
+    # whichever order Hydra saved the two in
+    for order in (["experiment=ladder_predict", "+experiment=ladder"], ["+experiment=ladder", "experiment=ladder_predict"]):
+        d = make_run_dir(tmp_path / str(len(list(tmp_path.iterdir()))), overrides=[*order, "particles=5"])
+        assert load_run(d).overrides_dict() == {"experiment": "ladder_predict", "particles": "5"}
+    d = make_run_dir(tmp_path / "plus", overrides=["+experiment=sim"])
+    assert load_run(d).overrides_dict() == {"experiment": "sim"}
+
+
 def test_tum_yaw_from_quaternion(tmp_path: Path) -> None:
     p = tmp_path / "x.tum"
     th = 2.5

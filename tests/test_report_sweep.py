@@ -136,3 +136,22 @@ def test_report_survives_broken_artifacts(tmp_path: Path) -> None:
     assert len(_rows(page)) == 2
     assert "unreadable run directory" in page
     assert load_run(root / "0").ok
+
+
+def test_weighting_fallback_columns_show_only_when_a_run_had_one(tmp_path: Path) -> None:
+    from report_fixtures import make_run_dir
+
+    from slamlab.report.sweep_report import build_sweep_report
+
+    def sweep(name: str, overflows: list[int]) -> str:
+        for i, n in enumerate(overflows):
+            d = make_run_dir(tmp_path / name / str(i), overrides=[f"weighting={'linear_exp' if n else 'logsumexp'}"], n_steps=50)
+            m = json.loads((d / "metrics.json").read_text())
+            m.update(weighting_overflows=n, weighting_underflows=0)
+            (d / "metrics.json").write_text(json.dumps(m))
+        return build_sweep_report([tmp_path / name], tmp_path / name / "out").read_text()
+
+    page = sweep("some", [0, 37])
+    assert "weight overflows" in page and 'data-v="37.0"' in page
+    assert "weight underflows" not in page  # zero everywhere: not worth a column
+    assert "weight overflows" not in sweep("none", [0, 0])

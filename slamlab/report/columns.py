@@ -20,6 +20,7 @@ class MetricSpec:
     label: str
     better: str | None
     table: bool = True  # False: kept in runs.csv and the run report, left out of the wide HTML table
+    hide_when_zero: bool = False  # a warning count: in the HTML table only when some run has one
 
 
 # Order = column order in the sweep table.
@@ -40,6 +41,10 @@ METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("consistency.hit_fraction_mean", "scan hits on map", "max"),
     MetricSpec("consistency.hit_fraction_p10", "scan hits p10", "max", table=False),
     MetricSpec("consistency.conflict_fraction", "wall conflicts", "min"),
+    # linear-space weightings: updates that fell back to uniform weights (weighting=linear_exp, linear),
+    # beside the accuracy they explain
+    MetricSpec("weighting_overflows", "weight overflows", "min", hide_when_zero=True),
+    MetricSpec("weighting_underflows", "weight underflows", "min", hide_when_zero=True),
     MetricSpec("runtime_s", "runtime (s)", "min"),
     MetricSpec("total_runtime_s", "total runtime (s)", "min"),
     MetricSpec("scans_per_s", "scans/s", "max"),

@@ -120,7 +120,7 @@ def prepare_map(m: LogOddsMap, max_px: int, trajectories: Sequence[Trajectory] =
     return MapView(image=1.0 - p_occ, extent=extent)
 
 
-def _draw_map(ax, view: MapView | None) -> None:
+def draw_map(ax, view: MapView | None) -> None:
     if view is not None:
         ax.imshow(view.image, cmap="gray", vmin=0.0, vmax=1.0, origin="lower", extent=view.extent, interpolation="nearest")
     ax.set_aspect("equal")
@@ -137,7 +137,7 @@ def map_with_trajectories(
     entries skipped). Start marked with a circle, end with a square."""
     trs = {k: v for k, v in trajectories.items() if v is not None and len(v)}
     fig, ax = plt.subplots(figsize=figsize)
-    _draw_map(ax, prepare_map(m, max_px, list(trs.values())) if m is not None else None)
+    draw_map(ax, prepare_map(m, max_px, list(trs.values())) if m is not None else None)
     for kind in ("groundtruth", "odometry", "slam"):
         tr = trs.get(kind)
         if tr is None:
@@ -236,7 +236,7 @@ def map_grid(items: Sequence[tuple[str, LogOddsMap | None, Trajectory | None]], 
         if m is None:
             ax.text(0.5, 0.5, "no map", ha="center", va="center", transform=ax.transAxes)
         else:
-            _draw_map(ax, prepare_map(m, max_px, [tr] if tr is not None else []))
+            draw_map(ax, prepare_map(m, max_px, [tr] if tr is not None else []))
         if tr is not None and len(tr):
             ax.plot(tr.xy[:, 0], tr.xy[:, 1], color=KIND_STYLE["slam"]["color"], lw=0.9)
         ax.set_title(label, fontsize=9)
@@ -258,7 +258,7 @@ def trajectories_overlay(
     """Every run's SLAM path on one map (the background map is named in the title)."""
     fig, ax = plt.subplots(figsize=(9.0, 7.5))
     all_tr = [tr for _, tr in runs] + [t for t in (groundtruth, odometry) if t is not None]
-    _draw_map(ax, prepare_map(background, max_px, all_tr) if background is not None else None)
+    draw_map(ax, prepare_map(background, max_px, all_tr) if background is not None else None)
     if groundtruth is not None:
         ax.plot(groundtruth.xy[:, 0], groundtruth.xy[:, 1], color="black", lw=2.2, alpha=0.6, label="ground truth")
     if odometry is not None:

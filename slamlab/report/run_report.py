@@ -14,7 +14,7 @@ from typing import Any
 import pandas as pd
 import yaml
 
-from slamlab.report import figures
+from slamlab.report import figures, particle_sections
 from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
 from slamlab.report.rundir import REPORT_FILE, TEXTURE_FILES, RunDir, flatten, load_run
 
@@ -75,6 +75,8 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
     out: list[tuple[str, str]] = []
     if m.get("mode") == "odometry":
         out.append(("filter", "none (dead reckoning)"))
+    elif m.get("mode") == "predict":
+        out.append(("filter", f"prediction only, {m.get('particles', '?')} particles"))
     elif "filter" in m:
         out.append(("filter", f"{m['filter']}, {m.get('particles', '?')} particles"))
     traj = m.get("trajectory") if isinstance(m.get("trajectory"), dict) else {}
@@ -92,6 +94,9 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
                        ("realtime_factor", "× real time"), ("peak_memory_mb", "peak memory (MB)"),
                        ("resample_count", "resamples"), ("neff_mean", "mean N_eff")):
         if key in m:
+            out.append((label, fmt_number(m[key])))
+    for key, label in (("weighting_overflows", "weight overflows"), ("weighting_underflows", "weight underflows")):
+        if m.get(key):
             out.append((label, fmt_number(m[key])))
     mem = m.get("map_memory") if isinstance(m.get("map_memory"), dict) else {}
     if "map_mb" in mem:
@@ -116,8 +121,10 @@ def rerun_commands(run: RunDir) -> tuple[str, str | None]:
 def render_run_report(run: RunDir) -> str:
     """The report page of one loaded run, as HTML text."""
     m = run.load_map()
+    mode = run.metrics.get("mode", "slam")
     trajs = {
-        "slam": run.load_trajectory("slam"),
+        # dead reckoning's estimate is the odometry itself; prediction's is one random particle
+        "slam": run.load_trajectory("slam") if mode not in ("odometry", "predict") else None,
         "odometry": run.load_trajectory("odometry"),
         "groundtruth": run.load_trajectory("groundtruth"),
     }
@@ -132,6 +139,9 @@ def render_run_report(run: RunDir) -> str:
             + (f", {m.data.shape[1]}×{m.data.shape[0]} cells of {m.resolution_m:g} m" if m is not None else "")
             + ". Paths: " + ", ".join(shown) + "; ○ start, ■ end."
             + (" No ground truth for this dataset." if missing else "")
+            + (" Dead reckoning: the estimate is the odometry, and the map is built along it." if mode == "odometry" else "")
+            + (" Prediction only: the map is built along particle 0's path (no particle is better than another);"
+               " every particle's path is drawn below." if mode == "predict" else "")
         )
 
     textures = []
@@ -149,7 +159,7 @@ def render_run_report(run: RunDir) -> str:
     steps = run.load_steps()
     neff_img = weight_img = None
     neff_note = ""
-    if steps is not None and len(steps) and "neff" in steps:
+    if steps is not None and len(steps) > 1 and "neff" in steps:  # one step has no "over time"
         particles = run.particles
         thr, thr_src = neff_threshold(run.config, particles)
         neff_img = figures.neff_plot(steps, particles, thr)
@@ -213,8 +223,13 @@ def render_run_report(run: RunDir) -> str:
         textures=textures,
         neff_img=neff_img,
         neff_note=neff_note,
+        single_step=steps is not None and len(steps) == 1,
         weight_img=weight_img,
         consistency_img=consistency_img,
+        first_scan=particle_sections.first_scan_section(run),
+        predict=particle_sections.predict_section(run),
+        weights=particle_sections.weights_section(run),
+        weighting_notice=particle_sections.weighting_notice(run),
         metric_sections=_metric_sections(run.metrics),
         info=info,
         rerun_cmd=cmd,

@@ -33,6 +33,8 @@ TRAJECTORY_FILE = "trajectory.tum"
 CAUSAL_FILE = "trajectory_causal.tum"
 ODOMETRY_FILE = "odometry.tum"
 GROUNDTRUTH_FILE = "groundtruth.tum"
+PARTICLES_FILE = "particles.npz"  # record.particles
+FIRST_SCAN_FILE = "first_scan.npz"  # record.first_scan
 # Pairs (SLAM, odometry) so the page shows them side by side.
 TEXTURE_FILES = ("texture.png", "texture_odometry.png", "texture_over_map.png", "texture_odometry_over_map.png")
 LOG_FILE = "slamlab.log"
@@ -72,6 +74,33 @@ class LogOddsMap:
         h, w = self.data.shape
         ox, oy = self.origin_xy
         return (ox, ox + w * self.resolution_m, oy, oy + h * self.resolution_m)
+
+
+@dataclass(frozen=True, slots=True)
+class ParticleRecord:
+    """particles.npz: K steps of N particles. `t` (K,) s; `poses` (K, N, 3) after the
+    update, before resampling; `weights` (K, N) normalised; `parents` (K, N) index into the
+    previous step's particles; `resampled` (K,) bool."""
+
+    t: np.ndarray
+    poses: np.ndarray
+    weights: np.ndarray
+    parents: np.ndarray
+    resampled: np.ndarray
+
+    @property
+    def particles(self) -> int:
+        return int(self.poses.shape[1])
+
+
+@dataclass(frozen=True, slots=True)
+class FirstScan:
+    """first_scan.npz: `points_xy` (M, 2) the first scan's points in the world frame (m),
+    `sensor_xy` (2,) where the lidar was, `pose` (3,) the robot's pose then."""
+
+    points_xy: np.ndarray
+    sensor_xy: np.ndarray
+    pose: np.ndarray
 
 
 @dataclass(slots=True)
@@ -126,13 +155,23 @@ class RunDir:
         return str(v) if v is not None else None
 
     def overrides_dict(self) -> dict[str, str]:
-        """Task overrides as {key: value}; Hydra prefixes (+, ++, ~) stripped from keys."""
+        """Task overrides as {key: value}; Hydra prefixes (+, ++, ~) stripped from keys.
+
+        A plain `key=value` wins over `+key=value` for the same key whatever their order, as
+        in Hydra: a sweep preset (`+experiment=ladder`) whose sweeper sets `experiment=X`
+        per job ran preset X."""
         out: dict[str, str] = {}
+        plain: set[str] = set()
         for item in self.overrides:
             key, sep, value = str(item).partition("=")
             if not sep:
                 continue
-            out[key.lstrip("+~")] = value
+            name = key.lstrip("+~")
+            if name in plain and key != name:
+                continue
+            out[name] = value
+            if key == name:
+                plain.add(name)
         return out
 
     def file(self, name: str) -> Path | None:
@@ -160,6 +199,14 @@ class RunDir:
         }
         name = files[which]
         return self._cached("traj:" + which, lambda: read_tum(self.path / name))
+
+    def load_particles(self) -> ParticleRecord | None:
+        """Every particle's pose and weight per step (record.particles), or None."""
+        return self._cached("particles", lambda: _read_npz(self.path / PARTICLES_FILE, ParticleRecord))
+
+    def load_first_scan(self) -> FirstScan | None:
+        """The first scan in the world frame (record.first_scan), or None."""
+        return self._cached("first_scan", lambda: _read_npz(self.path / FIRST_SCAN_FILE, FirstScan))
 
     def load_steps(self) -> pd.DataFrame | None:
         """The per-step table (steps.parquet preferred, steps.csv otherwise), or None."""
@@ -190,6 +237,19 @@ def read_logodds(path: Path) -> LogOddsMap | None:
         except KeyError as exc:
             raise SlamlabError(f"{path}: missing array {exc} (need data, resolution_m, origin_xy)") from exc
     return LogOddsMap(data=data, resolution_m=res, origin_xy=(float(origin[0]), float(origin[1])))
+
+
+def _read_npz(path: Path, record: type) -> Any:
+    """An .npz written by the pipeline as `record` (its fields are the array names); None
+    if the file is missing."""
+    if not path.is_file():
+        return None
+    names = record.__dataclass_fields__
+    with np.load(path) as z:
+        missing = [n for n in names if n not in z]
+        if missing:
+            raise SlamlabError(f"{path}: missing array(s) {', '.join(missing)} (need {', '.join(names)})")
+        return record(**{n: np.asarray(z[n]) for n in names})
 
 
 def read_steps(run_dir: Path) -> pd.DataFrame | None:

@@ -202,7 +202,8 @@ def _rel_href(target: Path, out_dir: Path) -> str:
 
 def html_table(df: pd.DataFrame, runs: Sequence[RunDir], swept: Sequence[str], out_dir: Path) -> tuple[Table, list[str]]:
     """The every-run table with links, sort keys and best marks; returns it and the metric keys shown."""
-    metric_keys = [m.key for m in METRICS if m.table and df[m.key].notna().any()]
+    metric_keys = [m.key for m in METRICS if m.table and df[m.key].notna().any()
+                   and not (m.hide_when_zero and (df[m.key].fillna(0) == 0).all())]
     has_err = any(not r.ok for r in runs)
     cols = [Column("run", True, "run directory (links to its report)"), Column("status", True)]
     cols += [Column(k, False, "swept parameter") for k in swept]
@@ -284,7 +285,9 @@ def param_plots(df: pd.DataFrame, swept: Sequence[str], metric_keys: Sequence[st
     for p in params:
         vals = [v for v in ok[p].tolist()]
         numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals)
-        cats = None if numeric else sorted({str(v) for v in vals})
+        # categories in run order: a sweep lists its values in the order the user chose
+        # (e.g. the ladder's steps), which says more than the alphabet
+        cats = None if numeric else list(dict.fromkeys(str(v) for v in vals))
         xmap = (lambda v: float(v)) if numeric else (lambda v, c=cats: float(c.index(str(v))))
         others = [k for k in params if k != p]
         groups = _config_groups(ok, others)[:MAX_SERIES]

@@ -14,7 +14,12 @@ Per processed step (see `steps.select_steps`):
    children share their parent's map tiles until they write).
 Each particle's pose per step and its parent index are kept, so the final best particle's
 own path (its ancestry) is the smoothed trajectory. `mode: odometry` skips 1, 2 and 4:
-the map is built along the raw odometry (dead reckoning, for comparison).
+the map is built along the raw odometry (dead reckoning, for comparison). `mode: predict`
+does 1 with noise for all N particles and skips 2 and 4 (weights stay uniform, nothing is
+resampled): the prediction step of the course's preparation ladder; the map and the
+trajectory are particle 0's, and the steps table gains the cloud's spread against the spread
+the motion model's noise predicts (`spread.py`). `record.particles` keeps every particle's
+pose and weight at every step for the report (`SlamResult.particle_history`).
 
 One `numpy.random.Generator(PCG64(seed))` drives all randomness; the numba kernels either
 run serial loops or (`rbpf`: per-particle matching and map updates) independent
@@ -42,14 +47,18 @@ from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import Matcher
 from slamlab.slam.motion import MotionModel
 from slamlab.slam.resample import Resampler
-from slamlab.slam.result import SlamResult
-from slamlab.slam.scan import range_limits, scan_to_points
+from slamlab.slam.result import ParticleHistory, SlamResult
+from slamlab.slam.scan import points_to_world, range_limits, scan_to_points
+from slamlab.slam.spread import spread_columns
 from slamlab.slam.steps import fill_between_steps, select_steps
 from slamlab.slam.weighting import Weighting, effective_sample_size
 
 log = logging.getLogger(__name__)
 
-MODES = ("slam", "odometry")
+MODES = ("slam", "odometry", "predict")
+# record.particles: auto keeps the history where the report can draw it (every path of a
+# prediction-only run; the weights of a filter with this few particles)
+RECORD_AUTO_MAX_PARTICLES = 10
 
 
 @dataclass(frozen=True, slots=True)
@@ -64,12 +73,14 @@ class Components:
     min_angle_rad: float
     skip_static_start: bool
     max_scans: int | None
+    max_steps: int | None
     motion: MotionModel
     weighting: Weighting
     resampler: Resampler
     matcher: Matcher
     map: MapSettings
     filter: FilterKind
+    record_particles: bool
 
 
 def build_component(cfg: DictConfig, group: str, base: type) -> object:
@@ -118,6 +129,11 @@ def validate_config(cfg: DictConfig) -> Components:
     mode = OmegaConf.select(cfg, "mode", default="slam")
     if mode not in MODES:
         raise ConfigError("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
+    record = OmegaConf.select(cfg, "record.particles", default="auto")
+    if record not in ("auto", True, False):
+        raise ConfigError("record.particles", f"must be auto, true or false, got {record!r}")
+    if record == "auto":
+        record = mode == "predict" or (mode == "slam" and particles <= RECORD_AUTO_MAX_PARTICLES)  # type: ignore[operator]
     skip = OmegaConf.select(cfg, "steps.skip_static_start", default=True)
     if not isinstance(skip, bool):
         raise ConfigError("steps.skip_static_start", f"must be true or false, got {skip!r}")
@@ -130,6 +146,7 @@ def validate_config(cfg: DictConfig) -> Components:
         min_angle_rad=_float(cfg, "steps.min_angle_rad", 0.0),
         skip_static_start=skip,
         max_scans=_int(cfg, "steps.max_scans", 1, default=None, allow_none=True),
+        max_steps=_int(cfg, "steps.max_steps", 1, default=None, allow_none=True),
         motion=build_component(cfg, "motion", MotionModel),  # type: ignore[arg-type]
         weighting=build_component(cfg, "weighting", Weighting),  # type: ignore[arg-type]
         resampler=build_component(cfg, "resampler", Resampler),  # type: ignore[arg-type]
@@ -137,6 +154,7 @@ def validate_config(cfg: DictConfig) -> Components:
         map=build_component(cfg, "map", MapSettings),  # type: ignore[arg-type]
         # configs saved before the filter group existed ran the course filter
         filter=build_component(cfg, "filter", FilterKind) if OmegaConf.select(cfg, "filter") is not None else SharedMapFilter(),  # type: ignore[arg-type]
+        record_particles=bool(record),
     )
 
 
@@ -164,7 +182,8 @@ def run_slam(
 
     `progress(scans_done, scans_total)` is called after every processed step (scans between
     steps count as done: the progress bar shows scans, the log's unit).
-    Returns one pose per scan (the first `steps.max_scans` scans when set)."""
+    Returns one pose per scan (the first `steps.max_scans` scans when set; with
+    `steps.max_steps`, the scans up to the last processed step)."""
     c = validate_config(cfg)
     scans = sequence.scans if c.max_scans is None else sequence.scans[: c.max_scans]
     if not scans:
@@ -172,9 +191,13 @@ def run_slam(
     times = np.array([s.t for s in scans], dtype=np.float64)
     odom = np.array([s.odom for s in scans], dtype=np.float64).reshape(-1, 3)
     step_scans = select_steps(odom, c.every, c.min_distance_m, c.min_angle_rad, c.skip_static_start)
+    if c.max_steps is not None and len(step_scans) > c.max_steps:
+        # the run ends at its last processed scan (max_steps=1: the first scan's map alone)
+        step_scans = step_scans[: c.max_steps]
+        scans, times, odom = scans[: step_scans[-1] + 1], times[: step_scans[-1] + 1], odom[: step_scans[-1] + 1]
     n_steps = len(step_scans)
     slam = c.mode == "slam"
-    n = c.particles if slam else 1
+    n = 1 if c.mode == "odometry" else c.particles
 
     ms = c.map
     min_r, max_r = range_limits(ms, sequence)
@@ -186,6 +209,7 @@ def run_slam(
     logw = np.full(n, -np.log(n))
     hist_poses = np.empty((n_steps, n, 3))
     hist_parent = np.empty((n_steps, n), dtype=np.int32)
+    hist_w = np.empty((n_steps, n)) if c.record_particles else None
     parent = np.arange(n, dtype=np.int32)
     causal = np.empty((n_steps, 3))
     rows: dict[str, list] = {k: [] for k in ("neff", "resampled", "best_weight", "step_time_s")}
@@ -202,6 +226,8 @@ def run_slam(
                 if len(pts.xy):
                     poses, scores = maps.match(c.matcher, poses, pts, c.filter.step_scale(inc))
                     logw = c.weighting.update(logw, scores)
+            elif c.mode == "predict":
+                poses = c.motion.sample(poses, inc, rng)
             else:
                 poses = se2_compose(poses, inc)
         w = np.exp(logw)
@@ -209,6 +235,10 @@ def run_slam(
         hist_poses[k] = poses
         hist_parent[k] = parent
         causal[k] = poses[best]
+        if hist_w is not None:
+            hist_w[k] = w
+        if k == 0:  # the first map is this scan alone, seen from the start pose
+            first_scan = (points_to_world(pts.xy, poses[best]), points_to_world(pts.origin.reshape(1, 2), poses[best])[0])
         maps.update(poses, pts, best)
         if k == n_steps - 1:
             final_map = maps.image(best)  # before a resample renumbers the particles' maps
@@ -242,11 +272,13 @@ def run_slam(
             "scan_index": np.array([scans[i].index for i in step_scans], dtype=np.int64),
             "t": times[step_scans],
             **rows,
+            **(spread_columns(hist_poses, odom[step_scans], c.motion) if c.mode == "predict" else {}),
         }
     )
     underflows = int(getattr(c.weighting, "underflows", 0))
-    if underflows:
-        log.warning("weighting underflowed %d times (uniform fallback used)", underflows)
+    overflows = int(getattr(c.weighting, "overflows", 0))
+    if underflows or overflows:
+        log.warning("weighting underflowed %d and overflowed %d times (uniform fallback used)", underflows, overflows)
     return SlamResult(
         times=times,
         trajectory=fill_between_steps(step_scans, smooth, odom),
@@ -258,11 +290,15 @@ def run_slam(
         resample_count=resample_count,
         runtime_s=runtime,
         fill="odometry",
+        particle_history=None if hist_w is None else ParticleHistory(hist_poses, hist_w, hist_parent, steps["resampled"].to_numpy(bool)),
+        first_scan_xy=first_scan[0],
+        first_scan_origin=first_scan[1],
         extras={
             "mode": c.mode,
             "processed_steps": n_steps,
             "step_scans": step_scans,
             "weighting_underflows": underflows,
+            "weighting_overflows": overflows,
             "neff_mean": float(np.mean(rows["neff"])),
             "neff_min": float(np.min(rows["neff"])),
             "filter": c.filter.name,

@@ -22,11 +22,18 @@ GROUP = "motion"
 
 
 class MotionModel(ABC):
-    """Interface: `sample(poses (N,3), increment (3,), rng) -> new poses (N,3)`."""
+    """Interface: `sample(poses (N,3), increment (3,), rng) -> new poses (N,3)`, and the
+    covariance of the noisy increment it samples (for the expected spread, `slam/spread.py`)."""
 
     @abstractmethod
     def sample(self, poses: FloatArray, increment: FloatArray, rng: np.random.Generator) -> FloatArray:
         ...
+
+    def increment_covariance(self, increment: FloatArray) -> FloatArray | None:
+        """(3, 3) covariance (m^2, m rad, rad^2) of the noisy increment `sample` composes
+        onto a particle, in the robot frame at the start of the step, to first order.
+        None when a model does not say (the report then shows no expected spread)."""
+        return None
 
 
 class CourseMotion(MotionModel):
@@ -59,16 +66,23 @@ class CourseMotion(MotionModel):
 
     def sample(self, poses: FloatArray, increment: FloatArray, rng: np.random.Generator) -> FloatArray:
         u = np.asarray(increment, dtype=np.float64)
-        scale = np.hypot(u[0], u[1]) / self.per_distance_m + abs(u[2]) / self.per_angle_rad
-        if self.growth == "sqrt":
-            scale = np.sqrt(scale)
         n = poses.shape[0]
         # Always draw the same number of variates so the random stream does not depend on
         # whether the robot moved (keeps runs comparable across configs).
         z = rng.standard_normal((n, 3))
-        sig = np.array([self.sigma_xy_m, self.sigma_xy_m, self.sigma_theta_rad]) * scale
+        sig = self._sigmas(u)
         noisy = u[None, :] + z * sig[None, :]
         return se2_compose(poses, noisy)
+
+    def _sigmas(self, u: FloatArray) -> FloatArray:
+        scale = np.hypot(u[0], u[1]) / self.per_distance_m + abs(u[2]) / self.per_angle_rad
+        if self.growth == "sqrt":
+            scale = np.sqrt(scale)
+        return np.array([self.sigma_xy_m, self.sigma_xy_m, self.sigma_theta_rad]) * scale
+
+    def increment_covariance(self, increment: FloatArray) -> FloatArray:
+        # independent Gaussian noise on x, y, theta of the increment: exact, not linearised
+        return np.diag(self._sigmas(np.asarray(increment, dtype=np.float64)) ** 2)
 
 
 class Odometry4Motion(MotionModel):
@@ -87,17 +101,30 @@ class Odometry4Motion(MotionModel):
         self.a3 = require_nonnegative(GROUP, "alpha3", alpha3)
         self.a4 = require_nonnegative(GROUP, "alpha4", alpha4)
 
-    def sample(self, poses: FloatArray, increment: FloatArray, rng: np.random.Generator) -> FloatArray:
+    def _decompose(self, increment: FloatArray) -> tuple[float, float, float, float, float, float]:
+        """(rot1, trans, rot2) of the increment and their noise deviations."""
         u = np.asarray(increment, dtype=np.float64)
         trans = float(np.hypot(u[0], u[1]))
         # Below 1 mm the heading of the translation is meaningless: treat it as a pure turn.
         rot1 = float(np.arctan2(u[1], u[0])) if trans > 1e-3 else 0.0
         rot2 = float(wrap_angle(u[2] - rot1))
+        s_rot1 = float(np.sqrt(self.a1 * rot1**2 + self.a2 * trans**2))
+        s_trans = float(np.sqrt(self.a3 * trans**2 + self.a4 * (rot1**2 + rot2**2)))
+        s_rot2 = float(np.sqrt(self.a1 * rot2**2 + self.a2 * trans**2))
+        return rot1, trans, rot2, s_rot1, s_trans, s_rot2
+
+    def increment_covariance(self, increment: FloatArray) -> FloatArray:
+        # the sampled increment is (trans cos rot1, trans sin rot1, rot1 + rot2): push the
+        # rot1/trans/rot2 variances through its Jacobian (first order)
+        rot1, trans, _, s_rot1, s_trans, s_rot2 = self._decompose(increment)
+        c, s = np.cos(rot1), np.sin(rot1)
+        J = np.array([[-trans * s, c, 0.0], [trans * c, s, 0.0], [1.0, 0.0, 1.0]])
+        return J @ np.diag([s_rot1**2, s_trans**2, s_rot2**2]) @ J.T
+
+    def sample(self, poses: FloatArray, increment: FloatArray, rng: np.random.Generator) -> FloatArray:
+        rot1, trans, rot2, s_rot1, s_trans, s_rot2 = self._decompose(increment)
         n = poses.shape[0]
         z = rng.standard_normal((n, 3))
-        s_rot1 = np.sqrt(self.a1 * rot1**2 + self.a2 * trans**2)
-        s_trans = np.sqrt(self.a3 * trans**2 + self.a4 * (rot1**2 + rot2**2))
-        s_rot2 = np.sqrt(self.a1 * rot2**2 + self.a2 * trans**2)
         r1 = rot1 + z[:, 0] * s_rot1
         tr = trans + z[:, 1] * s_trans
         r2 = rot2 + z[:, 2] * s_rot2

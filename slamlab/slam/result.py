@@ -8,10 +8,28 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
 import pandas as pd
 
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
+
+
+@dataclass(frozen=True, slots=True)
+class ParticleHistory:
+    """Every particle at every processed step (K steps, N particles), kept when
+    `record.particles` is on.
+
+    - `poses` (K, N, 3): after the update of step k, before any resampling;
+    - `weights` (K, N): the normalised weights the resampler saw at step k;
+    - `parents` (K, N): particle j of step k continues particle `parents[k, j]` of step k-1;
+    - `resampled` (K,): whether step k resampled (then step k+1's parents say how).
+    """
+
+    poses: FloatArray
+    weights: FloatArray
+    parents: np.ndarray
+    resampled: np.ndarray
 
 
 @dataclass(slots=True)
@@ -28,6 +46,9 @@ class SlamResult:
     - `steps`: one row per processed step with columns
       step, scan_index, t, neff, resampled, best_weight, step_time_s.
     - `particles`, `resample_count`, `runtime_s` (wall time of the filter loop only).
+    - `particle_history`: every particle's pose and weight per step, or None (not recorded).
+    - `first_scan_xy` (M, 2): the first processed scan's points in the world frame (m), as
+      inserted into the first map; `first_scan_origin` (2,) the lidar's position then.
     """
 
     times: FloatArray
@@ -41,3 +62,6 @@ class SlamResult:
     runtime_s: float
     fill: str = "odometry"
     extras: dict = field(default_factory=dict)
+    particle_history: ParticleHistory | None = None
+    first_scan_xy: FloatArray | None = None
+    first_scan_origin: FloatArray | None = None

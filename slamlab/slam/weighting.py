@@ -5,8 +5,20 @@ The engine keeps log-weights; each scheme returns new normalised log-weights.
   of many correlations (or of tiny weights and correlations) can underflow to all-zero;
   then the update cannot be normalised. Instead of crashing or producing NaN, it warns once
   with the reason, counts the event (`underflows`) and falls back to uniform weights.
+- `LinearExpWeighting`: `w *= exp(corr / temperature)` in linear space, then divide by the
+  sum: the same model as log-sum-exp (the correlation is a log-likelihood) computed the naive
+  way. exp(corr) overflows float64 for corr > 709.8, which THOR scans (about 1,000 beams,
+  hundreds of hits) reach at every step; the product or its sum can also underflow. Either
+  way the update cannot be normalised: it warns once, counts the event (`overflows`,
+  `underflows`) and falls back to uniform weights, like `LinearWeighting`. Where it stays
+  finite it gives the same weights as `LogSumExpWeighting` (up to rounding).
 - `LogSumExpWeighting`: `log w += corr / temperature`, normalised with log-sum-exp, which
   never underflows: the best particle always keeps log-weight >= -log N.
+
+Which observation model each implements: `linear` says p(scan | pose) is proportional to
+the correlation (the course's "easy, slightly incorrect" w *= corr); `linear_exp` and
+`logsumexp` say it is proportional to exp(correlation) ("easy, correct"), and only
+`logsumexp` computes that safely.
 
 Adding a scheme: subclass `Weighting`, implement `update`, add `conf/weighting/NAME.yaml`.
 """
@@ -25,10 +37,13 @@ from slamlab.slam._keys import require_positive
 
 GROUP = "weighting"
 log = logging.getLogger(__name__)
+# exp(x) is inf in float64 above this (log of the largest float64, 1.8e308).
+OVERFLOW_SCORE = float(np.log(np.finfo(np.float64).max))
 
 
 class WeightUnderflowWarning(RuntimeWarning):
-    """Linear weighting lost every particle's weight to floating-point underflow."""
+    """A linear-space weighting lost every particle's weight to floating-point underflow or
+    overflow and fell back to uniform weights."""
 
 
 def logsumexp(x: FloatArray) -> float:
@@ -46,13 +61,34 @@ def effective_sample_size(weights: FloatArray) -> float:
 
 
 class Weighting(ABC):
-    """Interface: `update(log_weights (N,), scores (N,)) -> normalised log-weights (N,)`."""
+    """Interface: `update(log_weights (N,), scores (N,)) -> normalised log-weights (N,)`.
+
+    `underflows` / `overflows`: updates that could not be normalised in floating point and
+    fell back to uniform weights (only the linear-space schemes can have them)."""
 
     underflows: int = 0
+    overflows: int = 0
 
     @abstractmethod
     def update(self, log_weights: FloatArray, scores: FloatArray) -> FloatArray:
         ...
+
+
+def _uniform_fallback(scheme: Weighting, n: int, what: str, detail: str, count: int) -> FloatArray:
+    """Uniform log-weights after a failed linear-space update, with a warning the first time
+    and a debug line after (on THOR scans linear_exp fails at every step; the engine logs the
+    totals). Uniform weights keep the filter alive (it loses its history, like a forced
+    resample) and the counts say so in metrics.json."""
+    msg = (
+        f"{type(scheme).__name__} {what}: {detail}; falling back to uniform weights "
+        f"(occurrence {count}). Use weighting=logsumexp to avoid this."
+    )
+    if count == 1:
+        warnings.warn(msg, WeightUnderflowWarning, stacklevel=3)
+        log.warning(msg)
+    else:
+        log.debug(msg)
+    return np.full(n, -np.log(n))
 
 
 class LinearWeighting(Weighting):
@@ -66,19 +102,39 @@ class LinearWeighting(Weighting):
         total = float(np.sum(w))
         if not (np.isfinite(total) and total > 0.0):
             # Every product w_i * corr_i fell below the smallest float64 (~1e-308) or every
-            # correlation was 0: there is nothing left to normalise. Uniform weights keep the
-            # filter alive (it loses its history, like a forced resample) and we say so.
+            # correlation was 0: there is nothing left to normalise.
             self.underflows += 1
-            msg = (
-                "linear weighting underflowed: every particle's weight * correlation is 0 in "
-                f"float64 (sum={total!r}); falling back to uniform weights "
-                f"(occurrence {self.underflows}). Use weighting=logsumexp to avoid this."
-            )
-            if self.underflows == 1:
-                warnings.warn(msg, WeightUnderflowWarning, stacklevel=2)
-            log.warning(msg)
-            n = w.shape[0]
-            return np.full(n, -np.log(n))
+            detail = f"every particle's weight * correlation is 0 in float64 (sum={total!r})"
+            return _uniform_fallback(self, w.shape[0], "underflowed", detail, self.underflows)
+        with np.errstate(divide="ignore"):
+            return np.log(w / total)
+
+
+class LinearExpWeighting(Weighting):
+    """w *= exp(corr / temperature) in linear space, normalised by the sum (see module doc).
+
+    `temperature` as in `LogSumExpWeighting`. Overflow (exp or the sum is inf) and
+    underflow (the sum is 0) are counted separately and replaced by uniform weights."""
+
+    def __init__(self, temperature: float = 1.0) -> None:
+        self.temperature = require_positive(GROUP, "temperature", temperature)
+        self.underflows = 0
+        self.overflows = 0
+
+    def update(self, log_weights: FloatArray, scores: FloatArray) -> FloatArray:
+        with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+            likelihood = np.exp(np.asarray(scores, dtype=np.float64) / self.temperature)
+            w = np.exp(np.asarray(log_weights, dtype=np.float64)) * likelihood
+            total = float(np.sum(w))
+        if not np.isfinite(total):
+            self.overflows += 1
+            detail = (f"exp(correlation) overflows float64 above {OVERFLOW_SCORE:.1f} (largest correlation "
+                      f"{float(np.max(scores)):.1f}, temperature {self.temperature:g}), so the weights are inf/inf")
+            return _uniform_fallback(self, w.shape[0], "overflowed", detail, self.overflows)
+        if not total > 0.0:
+            self.underflows += 1
+            detail = f"every particle's weight * exp(correlation) is 0 in float64 (sum={total!r})"
+            return _uniform_fallback(self, w.shape[0], "underflowed", detail, self.underflows)
         with np.errstate(divide="ignore"):
             return np.log(w / total)
 
