@@ -383,6 +383,9 @@ def _read(reader: Any, path: Path, scan_topic: str | None, odom_topic: str | Non
             for t, pose, child in _odom_poses(msg, topics.odom_is_tf, odom_frame, base or ""):
                 if base is None:
                     base = child or "base_link"
+                if not np.isfinite(pose).all():
+                    raise DataError(path, f"odometry pose is not finite: {pose.tolist()}",
+                                    record=f"topic {conn.topic}, message {k}", field="pose")  # fmt: skip
                 if t < odom.last_t - max_time_back_s:
                     raise DataError(path, f"time runs backwards: stamp {t:.6f} s is {odom.last_t - t:.3f} s before "
                                     f"an earlier message (more than max_time_back_s = {max_time_back_s} s)",
