@@ -70,8 +70,9 @@ def test_bag_reads_as_the_carmen_log(variant, intel, intel_bags):
 @pytest.mark.data
 @pytest.mark.slow
 def test_lidar2d_preset_on_the_bag_follows_the_carmen_trajectory(intel_bags, shared_data, tmp_path):
-    """`+experiment=lidar2d dataset=rosbag dataset.path=BAG` composes and runs; its path is the
-    CARMEN run's (beam angles differ by one float32 ulp, so equal to a tolerance)."""
+    """`+experiment=lidar2d dataset=rosbag dataset.path=BAG` composes and runs, and its path is
+    the CARMEN run's. LaserScan's float32 beam angles come back one ulp off, which flips no
+    resampling draw in these 400 scans (the whole-log runs part after scan 754: README)."""
     runs = {}
     log = shared_data / "carmen" / "intel.clf.bz2"
     for name, data in (("bag", ["dataset=rosbag", f"dataset.path={intel_bags[(2, 'mcap', 'tf')]}"]),
@@ -83,7 +84,7 @@ def test_lidar2d_preset_on_the_bag_follows_the_carmen_trajectory(intel_bags, sha
         runs[name] = artifacts.read_tum(tmp_path / name / "trajectory.tum")
     (t_bag, p_bag), (t_clf, p_clf) = runs["bag"], runs["clf"]
     np.testing.assert_array_equal(t_bag, t_clf)
-    assert np.abs(p_bag[:, :2] - p_clf[:, :2]).max() < 0.01  # m
+    assert np.abs(p_bag - p_clf).max() < 1e-6  # m, rad
     m = json.loads((tmp_path / "bag" / "metrics.json").read_text())
     assert m["status"] == "ok" and m["scans"] == 400 and m["dataset"] == "intel_ros2_mcap_tf"
 
