@@ -209,6 +209,14 @@ def _deserialize(reader: Any, path: Path, conn: Any, raw: bytes, k: int) -> Any:
         raise DataError(path, f"cannot decode {conn.msgtype}: {exc}", record=f"topic {conn.topic}, message {k}") from None
 
 
+def _check_time(path: Path, topic: str, k: int, t: float, latest: float, max_back_s: float) -> None:
+    """Refuse stamp t (s) of message k when it lies more than max_back_s before the latest one."""
+    if t < latest - max_back_s:
+        raise DataError(path, f"time runs backwards: stamp {t:.6f} s is {latest - t:.3f} s before an earlier message "
+                        f"(more than max_time_back_s = {max_back_s} s)",
+                        record=f"topic {topic}, message {k}", field="header.stamp")  # fmt: skip
+
+
 @dataclass
 class _Odometry:
     """Stamped odometry poses (x m, y m, yaw rad) in arrival order, a bounded window."""
@@ -386,18 +394,12 @@ def _read(reader: Any, path: Path, scan_topic: str | None, odom_topic: str | Non
                 if not np.isfinite(pose).all():
                     raise DataError(path, f"odometry pose is not finite: {pose.tolist()}",
                                     record=f"topic {conn.topic}, message {k}", field="pose")  # fmt: skip
-                if t < odom.last_t - max_time_back_s:
-                    raise DataError(path, f"time runs backwards: stamp {t:.6f} s is {odom.last_t - t:.3f} s before "
-                                    f"an earlier message (more than max_time_back_s = {max_time_back_s} s)",
-                                    record=f"topic {conn.topic}, message {k}", field="header.stamp")  # fmt: skip
+                _check_time(path, conn.topic, k, t, odom.last_t, max_time_back_s)
                 odom.add(t, pose)
             flush()
             continue
         t = stamp_s(msg.header.stamp)
-        if t < last_scan_t - max_time_back_s:
-            raise DataError(path, f"time runs backwards: stamp {t:.6f} s is {last_scan_t - t:.3f} s before an earlier scan "
-                            f"(more than max_time_back_s = {max_time_back_s} s)",
-                            record=f"topic {conn.topic}, message {k}", field="header.stamp")  # fmt: skip
+        _check_time(path, conn.topic, k, t, last_scan_t, max_time_back_s)
         last_scan_t = max(last_scan_t, t)
         r, a, v = maker.beams(msg, k)
         if not laser_frame:
