@@ -23,50 +23,17 @@ cent; runs that lost a loop or have no scan matching score clearly lower / highe
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from slamlab.frames import GridImage, Sequence
 from slamlab.geometry import FloatArray
 from slamlab.slam.grid import MapSettings
+from slamlab.slam.raycast import raycast_update
 from slamlab.slam.scan import points_to_world, range_limits, scan_to_points
 
 WINDOW = 25  # scored scans per rolling median: the worst stretch of the run
 NEAR_M = 0.5  # crossings this close to a beam's own hit (m) are not counted as conflicts
 MIN_HITS = 4  # a cell is a wall of the replay when the sampled scans hit it this often
-
-
-@numba.njit(cache=True)
-def _count_beams(hits, passes, r0, c0, rows, cols, near):
-    """Add 1 to `hits` at each end cell (rows[k], cols[k]) and to `passes` at every cell a
-    beam from (r0, c0) crosses before its end (Bresenham, as the map update walks them),
-    except the last `near` cells before the end: a beam that grazes a wall crosses that
-    wall's own cells just before its hit, which is no conflict. Beams whose end lies
-    outside the arrays are skipped."""
-    H, W = hits.shape
-    for k in range(rows.shape[0]):
-        r1 = rows[k]
-        c1 = cols[k]
-        if r1 < 0 or r1 >= H or c1 < 0 or c1 >= W:
-            continue
-        dr = abs(r1 - r0)
-        dc = abs(c1 - c0)
-        sr = 1 if r1 > r0 else -1
-        sc = 1 if c1 > c0 else -1
-        err = dc - dr
-        r = r0
-        c = c0
-        while r != r1 or c != c1:
-            if 0 <= r < H and 0 <= c < W and max(abs(r1 - r), abs(c1 - c)) > near:
-                passes[r, c] += 1
-            e2 = 2 * err
-            if e2 > -dr:
-                err -= dr
-                c += sc
-            if e2 < dc:
-                err += dc
-                r += sr
-        hits[r1, c1] += 1
 
 
 def _dilate(mask: np.ndarray) -> np.ndarray:
@@ -98,27 +65,42 @@ def consistency_metrics(
     occupied = _dilate(log_odds.data > settings.occupied_threshold)
     H, W = occupied.shape
     hits = np.zeros((H, W), dtype=np.int32)
-    passes = np.zeros((H, W), dtype=np.int32)
+    passes = np.zeros((H, W), dtype=np.float32)  # counted by the map's own ray walk
+    no_flips = np.zeros(4, dtype=np.int64)
     inv = 1.0 / log_odds.resolution_m
     ox, oy = log_odds.origin_xy
     min_r, max_r = range_limits(settings, sequence)
-    near = int(round(NEAR_M * inv))
     frac = np.full(len(pick), np.nan)
+
+    def cells(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        c = np.floor((xy[:, 0] - ox) * inv).astype(np.int64)
+        r = np.floor((xy[:, 1] - oy) * inv).astype(np.int64)
+        return r, c, (r >= 0) & (r < H) & (c >= 0) & (c < W)
+
     for j, i in enumerate(pick):
         pts = scan_to_points(sequence.scans[i], sequence.body_height_m, min_r, max_r, settings.ground_threshold_m)
         if len(pts.xy) == 0:
             continue
         world = points_to_world(pts.xy, poses[i])
-        cols = np.floor((world[:, 0] - ox) * inv).astype(np.int64)
-        rows = np.floor((world[:, 1] - oy) * inv).astype(np.int64)
-        inside = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
+        rows, cols, inside = cells(world)
         on_wall = np.zeros(len(rows), dtype=bool)
         on_wall[inside] = occupied[rows[inside], cols[inside]]
         frac[j] = float(on_wall.mean())
-        sensor = points_to_world(pts.origin.reshape(1, 2), poses[i])[0]
-        r0 = int(np.floor((sensor[1] - oy) * inv))
-        c0 = int(np.floor((sensor[0] - ox) * inv))
-        _count_beams(hits, passes, r0, c0, rows, cols, near)
+        np.add.at(hits, (rows[inside], cols[inside]), 1)
+        # crossings: each beam walked up to NEAR_M short of its hit (a beam grazing a wall
+        # walks through that wall's own cells just before it, which is no conflict)
+        sensor = points_to_world(pts.origin.reshape(1, 2), poses[i])
+        s_row, s_col, s_in = cells(sensor)
+        ray = world - sensor
+        length = np.hypot(ray[:, 0], ray[:, 1])
+        far = length > NEAR_M
+        if not s_in[0] or not far.any():
+            continue
+        short = sensor + ray[far] * ((length[far] - NEAR_M) / length[far])[:, None]
+        e_row, e_col, e_in = cells(short)
+        # +1 on every cell of the shortened beam, its end included (free and hit deltas both 1)
+        raycast_update(passes, int(s_row[0]), int(s_col[0]), e_row[e_in], e_col[e_in],
+                       1.0, 1.0, 0.0, 3.0e38, 0.5, no_flips)
     walls = hits >= MIN_HITS
     conflict = float(np.mean(passes[walls] >= 2 * hits[walls])) if walls.any() else float("nan")
     scored = frac[np.isfinite(frac)]
