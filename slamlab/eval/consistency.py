@@ -16,7 +16,7 @@ against itself. Scans are replayed at the estimated trajectory (a sample of up t
   of the pass that put the wall elsewhere. Crossings within `NEAR_M` of a beam's own hit
   are not counted: a beam grazing a wall walks through that wall's cells before its hit.
 
-What the values mean is measured in README (section "Consistency"): consistent runs on the
+What the values mean is measured in README (section "Is the map consistent?"): consistent runs on the
 benchmark logs score a hit-fraction mean around 0.9 and a conflict fraction of a few per
 cent; runs that lost a loop or have no scan matching score clearly lower / higher.
 """
