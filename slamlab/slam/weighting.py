@@ -91,6 +91,19 @@ def _uniform_fallback(scheme: Weighting, n: int, what: str, detail: str, count: 
     return np.full(n, -np.log(n))
 
 
+def _normalised(scheme: Weighting, w: FloatArray, total: float, product: str) -> FloatArray:
+    """log(w / total) for linear-space weights `w` with sum `total`; when the sum is 0 (every
+    product underflowed, or every correlation was 0) there is nothing to normalise: count it
+    on `scheme.underflows` and fall back to uniform weights. `product` names what was
+    multiplied, for the message."""
+    if not (np.isfinite(total) and total > 0.0):
+        scheme.underflows += 1
+        detail = f"every particle's weight * {product} is 0 in float64 (sum={total!r})"
+        return _uniform_fallback(scheme, w.shape[0], "underflowed", detail, scheme.underflows)
+    with np.errstate(divide="ignore"):
+        return np.log(w / total)
+
+
 class LinearWeighting(Weighting):
     """w *= corr, normalised by the sum. Negative correlations count as 0."""
 
@@ -99,15 +112,8 @@ class LinearWeighting(Weighting):
 
     def update(self, log_weights: FloatArray, scores: FloatArray) -> FloatArray:
         w = np.exp(np.asarray(log_weights, dtype=np.float64)) * np.clip(np.asarray(scores, dtype=np.float64), 0.0, None)
-        total = float(np.sum(w))
-        if not (np.isfinite(total) and total > 0.0):
-            # Every product w_i * corr_i fell below the smallest float64 (~1e-308) or every
-            # correlation was 0: there is nothing left to normalise.
-            self.underflows += 1
-            detail = f"every particle's weight * correlation is 0 in float64 (sum={total!r})"
-            return _uniform_fallback(self, w.shape[0], "underflowed", detail, self.underflows)
-        with np.errstate(divide="ignore"):
-            return np.log(w / total)
+        # products below the smallest float64 (~1e-308) underflow to 0
+        return _normalised(self, w, float(np.sum(w)), "correlation")
 
 
 class LinearExpWeighting(Weighting):
@@ -131,12 +137,7 @@ class LinearExpWeighting(Weighting):
             detail = (f"exp(correlation) overflows float64 above {OVERFLOW_SCORE:.1f} (largest correlation "
                       f"{float(np.max(scores)):.1f}, temperature {self.temperature:g}), so the weights are inf/inf")
             return _uniform_fallback(self, w.shape[0], "overflowed", detail, self.overflows)
-        if not total > 0.0:
-            self.underflows += 1
-            detail = f"every particle's weight * exp(correlation) is 0 in float64 (sum={total!r})"
-            return _uniform_fallback(self, w.shape[0], "underflowed", detail, self.underflows)
-        with np.errstate(divide="ignore"):
-            return np.log(w / total)
+        return _normalised(self, w, total, "exp(correlation)")
 
 
 class LogSumExpWeighting(Weighting):
