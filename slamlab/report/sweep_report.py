@@ -285,10 +285,25 @@ def _x_axis(values: Sequence[Any]) -> tuple[list[float], list[str] | None]:
     return [float(cats.index(value_text(v))) for v in values], cats
 
 
-def param_plots(df: pd.DataFrame, swept: Sequence[str], metric_keys: Sequence[str] = ()) -> list[dict[str, str]]:
+def param_series(df: pd.DataFrame, param: str, others: Sequence[str], key: str) -> list[figures.Series]:
+    """Metric `key` of the successful runs against swept `param`: one Series per value of the
+    `others` swept parameters (so two parameters are never mixed into one line), each point
+    the mean ± std over seeds at one value of `param`. `df` needs an `_x` column: the plot
+    position of each run's `param` value (_x_axis)."""
+    ok = df[(df["status"] == STATUS_OK) & df[key].notna()]
+    series = []
+    for gvals, g in config_groups(ok, others)[:MAX_SERIES]:
+        stats = g.groupby("_x", sort=True)[key].agg(["mean", "std", "count"])
+        std = stats["std"].where(stats["count"] > 1, 0.0).to_numpy(float)
+        series.append(figures.Series(config_label(others, gvals) if others else "", stats.index.to_numpy(float),
+                                     stats["mean"].to_numpy(float), std, g["_x"].to_numpy(float),
+                                     g[key].to_numpy(float)))
+    return series
+
+
+def param_plots(df: pd.DataFrame, swept: Sequence[str]) -> list[dict[str, str]]:
     """The headline metrics (headline_keys) versus each swept parameter (seed excluded: it is
-    averaged over). Every value of the other swept parameters is its own line, so a sweep over
-    two parameters never mixes them into one line; seeds become mean ± std with the points."""
+    averaged over), one line per value of the other swept parameters (param_series)."""
     ok = df[df["status"] == STATUS_OK]
     params = [k for k in swept if k != SEED_KEY]
     keys = headline_keys(df)
@@ -296,24 +311,10 @@ def param_plots(df: pd.DataFrame, swept: Sequence[str], metric_keys: Sequence[st
         return []
     out = []
     for p in params:
-        xs_all, cats = _x_axis(ok[p].tolist())
-        ok_x = ok.assign(_x=xs_all)
+        xs, cats = _x_axis(ok[p].tolist())
+        ok_x = ok.assign(_x=xs)
         others = [k for k in params if k != p]
-        groups = config_groups(ok_x, others)[:MAX_SERIES]
-        panels = []
-        for key in keys:
-            series = []
-            for gvals, g in groups:
-                g = g[g[key].notna()]
-                if g.empty:
-                    continue
-                stats = g.groupby("_x", sort=True)[key].agg(["mean", "std", "count"])
-                std = stats["std"].where(stats["count"] > 1, 0.0).to_numpy(float)
-                series.append(figures.Series(config_label(others, gvals) if others else "", stats.index.to_numpy(float),
-                                             stats["mean"].to_numpy(float), std, g["_x"].to_numpy(float),
-                                             g[key].to_numpy(float)))
-            if series:
-                panels.append((METRIC_BY_KEY[key].label, series))
+        panels = [(METRIC_BY_KEY[k].label, s) for k in keys if (s := param_series(ok_x, p, others, k))]
         if panels:
             title = f"versus {p}" + (f", one line per {', '.join(others)}" if others else "")
             out.append({"title": title, "img": sweep_figures.metric_panels(p, panels, cats)})
@@ -520,7 +521,7 @@ def build_sweep_report(
     maps = _run_maps(runs, ok_idx, display, labels)
     overlay_img, overlay_note = _overlay(runs, ok_idx, df, display, labels)
     neff_img, neff_note = _neff(runs, ok_idx, display, labels)
-    plots = _safe("parameter plots", lambda: param_plots(df, swept, metric_keys)) or []
+    plots = _safe("parameter plots", lambda: param_plots(df, swept)) or []
     aggregate = _safe("seed aggregate", lambda: seed_aggregate(df, swept, metric_keys))
 
     diff = config_differences(runs)
