@@ -68,6 +68,9 @@ function () {
     images: imgs.length,
     broken: imgs.filter(function (i) { return !(i.complete && i.naturalWidth > 0); }).map(function (i) { return i.alt; }),
     sections: Array.prototype.map.call(document.querySelectorAll("section[id]"), function (s) { return s.id; }),
+    section_images: Array.prototype.reduce.call(document.querySelectorAll("section[id]"), function (acc, s) {
+      acc[s.id] = s.querySelectorAll("img").length; return acc; }, {}),
+    image_sizes: imgs.map(function (i) { return [i.alt, i.naturalWidth, i.naturalHeight]; }),
     headers: Array.prototype.map.call(document.querySelectorAll("#runs-table thead th"), function (t) { return t.textContent.trim(); }),
     text: document.body.innerText
   };

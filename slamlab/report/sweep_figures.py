@@ -26,6 +26,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (after figures: headless backend 
 from slamlab.report.rundir import LogOddsMap, Trajectory
 
 PANELS_PER_ROW = 3
+MIN_MAP_PX = 420  # a small map is enlarged by whole pixels up to this longest side
 
 
 def _colour(i: int):
@@ -123,14 +124,14 @@ def run_map(m: LogOddsMap, slam: Trajectory | None, groundtruth: Trajectory | No
             max_px: int = 560) -> tuple[str, tuple[float, float]]:
     """One run's own map (free white, walls black, unknown grey; cropped to what it saw and the
     paths) with its SLAM path in blue and, when known, the ground truth in thin black. At most
-    `max_px` per side, at least 420 px (enlarged by whole pixels), so maps placed side by side
+    `max_px` per side, at least MIN_MAP_PX (enlarged by whole pixels), so maps placed side by side
     can be compared wall by wall. Drawn with Pillow: a dozen maps in well under a second.
     Returns the URI and the (width, height) in metres that the image covers."""
     trs = [t for t in (slam, groundtruth) if t is not None and len(t)]
     view = prepare_map(m, max_px, trs)
     grey = np.clip(np.flipud(view.image) * 255.0, 0, 255).astype(np.uint8)
     im = Image.fromarray(grey, mode="L").convert("RGB")
-    k = max(1, 420 // max(im.size))
+    k = math.ceil(MIN_MAP_PX / max(im.size))
     if k > 1:
         im = im.resize((im.width * k, im.height * k), Image.NEAREST)
     draw = ImageDraw.Draw(im)
