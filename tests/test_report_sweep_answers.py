@@ -13,6 +13,7 @@ import re
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -183,3 +184,30 @@ def test_captions_say_no_ground_truth_when_there_is_none(tmp_path: Path) -> None
     assert "no ground truth" in overlay and "dashed red: odometry" in overlay
     assert "No run has ground truth or relations" in page
     assert "thin black" not in page
+
+
+def test_relation_error_over_time_from_the_runs_relations_file(tmp_path: Path) -> None:
+    """A CARMEN-style run: no ground truth, relations beside the log (found through
+    dataset.path as the run found them). Each relation's error is the mismatch between the
+    estimated and the recorded motion, placed at the time of its later scan."""
+    from slamlab.artifacts import write_tum
+    from slamlab.report.error_series import RELATIONS, error_series
+
+    run = make_run_dir(tmp_path / "run", overrides=[], n_steps=20, groundtruth=False)
+    t = 100.0 + np.arange(6, dtype=float)
+    poses = np.column_stack([np.arange(6, dtype=float), np.zeros(6), np.zeros(6)])  # 1 m steps along x
+    write_tum(run / "trajectory.tum", t, poses)
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "mini.clf.bz2").write_bytes(b"")  # only its name matters here
+    # Recorded motions: 1 m (exact), 1.2 m (the estimate is 0.2 m short), 2 m over two steps.
+    (logs / "mini.relations").write_text(
+        "101.0 102.0 1.0 0 0 0 0 0\n102.0 103.0 1.2 0 0 0 0 0\n103.0 105.0 2.0 0 0 0 0 0\n")
+    config = json.loads((run / "manifest.json").read_text())
+    config["config"]["dataset"] = {"name": "carmen", "path": "logs/mini.clf.bz2"}
+    config["cwd"] = str(tmp_path)  # relative dataset.path: relative to where the run started
+    (run / "manifest.json").write_text(json.dumps(config))
+    es = error_series(load_run(run))
+    assert es is not None and es.kind == RELATIONS
+    assert es.t.tolist() == [2.0, 3.0, 5.0]  # later scan of each relation, s after the first pose
+    assert es.error_m == pytest.approx([0.0, 0.2, 0.0], abs=1e-9)

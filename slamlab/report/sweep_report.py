@@ -373,7 +373,7 @@ def _verdict_section(df: pd.DataFrame, params: Sequence[str], runs: Sequence[Run
     if cost_key and len(contenders) > 1 and all(c in cost for c in contenders):
         pick = min(contenders, key=lambda c: cost[c].mean)
         cheapest = (f"Of the best and its ties, the cheapest is {pick}"
-                    f" ({METRIC_BY_KEY[cost_key].label} {fmt_number(cost[pick].mean, 3)}).")
+                    f" ({METRIC_BY_KEY[cost_key].label}: {fmt_number(cost[pick].mean, 3)}, mean over seeds).")
     n_bad = sum(not r.ok for r in runs)
     return {
         "summary": verdict.summary, "cheapest": cheapest, "rows": rows, "label": verdict.label,
