@@ -317,6 +317,9 @@ def param_plots(df: pd.DataFrame, swept: Sequence[str]) -> list[dict[str, str]]:
         panels = [(METRIC_BY_KEY[k].label, s) for k in keys if (s := param_series(ok_x, p, others, k))]
         if panels:
             title = f"versus {p}" + (f", one line per {', '.join(others)}" if others else "")
+            n_lines = len(config_groups(ok, others))
+            if n_lines > MAX_SERIES:
+                title += f" (the first {MAX_SERIES} of {n_lines} combinations; the table has them all)"
             out.append({"title": title, "img": sweep_figures.metric_panels(p, panels, cats)})
     return out
 
