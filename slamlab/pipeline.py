@@ -225,7 +225,7 @@ def run_pipeline(
             reporter.close()
 
         metrics = filter_metrics(seq, result, cfg)
-        metrics["cpu_s"] = cpu_slam
+        metrics["cpu_time_s"] = cpu_slam
         metrics.update(accuracy_metrics(seq, result))
         consistency, consistency_series = consistency_metrics(seq, result.trajectory, result.log_odds, components.map)
         metrics["consistency"] = consistency
@@ -251,7 +251,7 @@ def run_pipeline(
                 metrics["texture"] = {"status": "failed", "error": str(err)}
 
         metrics["total_runtime_s"] = time.perf_counter() - t0
-        metrics["total_cpu_s"] = time.process_time() - cpu0
+        metrics["total_cpu_time_s"] = time.process_time() - cpu0
         metrics["peak_memory_mb"] = peak_memory_mb()
         artifacts.write_json(run_dir / "manifest.json", build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
         artifacts.write_json(run_dir / "metrics.json", metrics)

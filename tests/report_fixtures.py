@@ -156,7 +156,7 @@ def make_run_dir(
         "dataset": "sim", "scans": 2 * n, "processed_steps": n, "particles": particles, "seed": seed,
         "runtime_s": round(runtime, 4), "total_runtime_s": round(runtime + 1.5, 4),
         # run alone: CPU time a little under wall time
-        "cpu_s": round(0.95 * runtime, 4), "total_cpu_s": round(0.95 * runtime + 1.4, 4),
+        "cpu_time_s": round(0.95 * runtime, 4), "total_cpu_time_s": round(0.95 * runtime + 1.4, 4),
         "scans_per_s": round(2 * n / runtime, 3), "realtime_factor": round(30.0 / runtime, 3),
         "peak_memory_mb": round(200 + particles * 0.5, 1),
         "resample_count": int(resampled.sum()), "neff_mean": float(neff.mean()), "neff_min": float(neff.min()),

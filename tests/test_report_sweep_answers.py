@@ -92,7 +92,7 @@ def test_two_parameters_give_one_line_per_value_of_the_other(tmp_path: Path) -> 
     by_res = param_series(df.assign(_x=xs), "resampler", ["particles"], "trajectory.rmse_m")
     assert [s.label for s in by_res] == ["particles=5", "particles=20"]
     # Every headline question has its metric here: accuracy, rotation, CPU time, memory, texture.
-    assert headline_keys(df) == ["trajectory.rmse_m", "trajectory.rot_rmse_deg", "cpu_s", "peak_memory_mb",
+    assert headline_keys(df) == ["trajectory.rmse_m", "trajectory.rot_rmse_deg", "cpu_time_s", "peak_memory_mb",
                                  "texture.colour_error"]
     page = build_sweep_report([tmp_path / "sw"], tmp_path / "sw").read_text()
     assert "versus particles, one line per resampler" in page
@@ -139,11 +139,11 @@ def test_wall_time_flagged_when_runs_overlap_or_wait_for_cores(tmp_path: Path) -
     assert "compare CPU time" in check.note
 
     _set_span(paths[1], 1100.0, 1150.0)
-    loaded = df.assign(cpu_s=df["runtime_s"] / 2.4)  # waited for the cores: wall = 2.4 x CPU
+    loaded = df.assign(cpu_time_s=df["runtime_s"] / 2.4)  # waited for the cores: wall = 2.4 x CPU
     check = runtime_check(loaded, runs)
     assert not check.comparable and "2.4" in check.note and "3 of 3 runs" in check.note
 
-    no_cpu = df.assign(cpu_s=float("nan"))  # runs from before metrics had cpu_s
+    no_cpu = df.assign(cpu_time_s=float("nan"))  # runs from before metrics had cpu_time_s
     assert "do not record CPU time" in runtime_check(no_cpu, runs).note
 
     page = build_sweep_report([root], root).read_text()

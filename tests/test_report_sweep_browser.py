@@ -8,37 +8,23 @@ fail and the sweep goes on. Skips without Chromium unless SLAMLAB_REQUIRE_BROWSE
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
-import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-import slamlab
 from slamlab.report import build_sweep_report
 from slamlab.report.rundir import load_run
+import test_report_screenshot as screenshot_tests
+from test_report_real import CONF, SLAMLAB  # the app and its config folder, as the real-run tests find them
 
-_spec = importlib.util.spec_from_file_location(
-    "screenshot_reports", Path(__file__).resolve().parents[1] / "benchmarks" / "screenshot_reports.py")
-shots = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(shots)
+shots = screenshot_tests.shots  # benchmarks/screenshot_reports.py: the Chromium driver
+pytestmark = screenshot_tests.pytestmark  # slow; skipped without Chromium unless required
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(
-        shots.find_browser() is None and os.environ.get("SLAMLAB_REQUIRE_BROWSER") != "1",
-        reason="Chromium not installed",
-    ),
-]
-
-CONF = Path(slamlab.__file__).resolve().parent / "conf"
-SLAMLAB = shutil.which("slamlab", path=str(Path(sys.executable).parent)) or shutil.which("slamlab")
 CONFIGS = [(p, r) for p in (4, 8) for r in ("systematic", "residual")]
 
 
@@ -73,7 +59,7 @@ def test_sweep_ran_as_intended(sweep: Path) -> None:
     m = _metrics(sweep)
     assert [x["status"] for x in m] == ["failed"] * 4 + ["ok"] * 8
     assert all("texture" in x and x["texture"]["status"] == "ok" for x in m[4:])
-    assert all(x["cpu_s"] > 0 and x["total_cpu_s"] >= x["cpu_s"] for x in m[4:])
+    assert all(x["cpu_time_s"] > 0 and x["total_cpu_time_s"] >= x["cpu_time_s"] for x in m[4:])
 
 
 def test_page_shows_the_verdict_of_the_runs(sweep: Path, page) -> None:

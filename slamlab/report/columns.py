@@ -47,9 +47,9 @@ METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("texture.covered_area_m2", "texture area (m²)", None, table=False),
     # Wall time next to CPU time: wall time grows when jobs share the cores, CPU time does not.
     MetricSpec("runtime_s", "wall time (s)", "min"),
-    MetricSpec("cpu_s", "CPU time (s)", "min"),
+    MetricSpec("cpu_time_s", "CPU time (s)", "min"),
     MetricSpec("total_runtime_s", "total wall (s)", "min"),
-    MetricSpec("total_cpu_s", "total CPU (s)", "min", table=False),
+    MetricSpec("total_cpu_time_s", "total CPU (s)", "min", table=False),
     MetricSpec("scans_per_s", "scans/s", "max"),
     MetricSpec("realtime_factor", "× real time", "max"),
     MetricSpec("peak_memory_mb", "peak memory (MB)", "min"),
@@ -70,7 +70,7 @@ ACCURACY_KEYS = ("trajectory.rmse_m", "relations.trans_abs_mean_m", "map.agreeme
 HEADLINE_GROUPS: tuple[tuple[str, ...], ...] = (
     ACCURACY_KEYS + ("consistency.hit_fraction_mean",),
     ("trajectory.rot_rmse_deg", "relations.rot_abs_mean_deg"),
-    ("cpu_s", "runtime_s"),
+    ("cpu_time_s", "runtime_s"),
     ("peak_memory_mb",),
     ("texture.colour_error",),
 )

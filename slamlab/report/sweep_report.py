@@ -357,7 +357,7 @@ def _verdict_section(df: pd.DataFrame, params: Sequence[str], runs: Sequence[Run
     verdict = sweep_verdict(df, params, keys[0])
     if verdict is None:
         return None
-    cost_key = next((k for k in ("cpu_s", "runtime_s") if df.loc[df["status"] == STATUS_OK, k].notna().any()), None)
+    cost_key = next((k for k in ("cpu_time_s", "runtime_s") if df.loc[df["status"] == STATUS_OK, k].notna().any()), None)
     cost = {s.label: s for s in config_stats(df, params, cost_key)} if cost_key else {}
     unit_better = "lower" if METRIC_BY_KEY[verdict.key].better != "max" else "higher"
     rows = []

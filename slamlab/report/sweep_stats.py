@@ -190,12 +190,12 @@ def overlapping_runs(runs: Sequence[RunDir]) -> int:
 
 
 def runtime_check(df: pd.DataFrame, runs: Sequence[RunDir]) -> RuntimeCheck | None:
-    """Say whether wall times compare, from CPU time (metrics `cpu_s`) and overlapping runs."""
+    """Say whether wall times compare, from CPU time (metrics `cpu_time_s`) and overlapping runs."""
     ok = df[df["status"] == STATUS_OK]
     if ok.empty or ok["runtime_s"].isna().all():
         return None
-    both = ok[ok["runtime_s"].notna() & ok["cpu_s"].notna() & (ok["cpu_s"] > 0)]
-    ratios = [float(r) for r in (both["runtime_s"] / both["cpu_s"])]
+    both = ok[ok["runtime_s"].notna() & ok["cpu_time_s"].notna() & (ok["cpu_time_s"] > 0)]
+    ratios = [float(r) for r in (both["runtime_s"] / both["cpu_time_s"])]
     parallel = overlapping_runs([r for r in runs if r.ok])
     loaded = [r for r in ratios if r > LOAD_RATIO]
     parts = []
@@ -207,7 +207,7 @@ def runtime_check(df: pd.DataFrame, runs: Sequence[RunDir]) -> RuntimeCheck | No
                      f" {fmt_number(min(loaded), 2)}–{fmt_number(max(loaded), 2)}× its CPU time: the run"
                      " waited for the cores (parallel jobs or other load on the machine).")
     if not ratios:
-        parts.append("These runs do not record CPU time (metrics.json `cpu_s`, written by newer slamlab),"
+        parts.append("These runs do not record CPU time (metrics.json `cpu_time_s`, written by newer slamlab),"
                      " so it cannot be checked whether they ran under load.")
         return RuntimeCheck(not parallel, " ".join(parts), parallel, ratios)
     if parallel or loaded:
