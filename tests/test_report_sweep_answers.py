@@ -211,3 +211,17 @@ def test_relation_error_over_time_from_the_runs_relations_file(tmp_path: Path) -
     assert es is not None and es.kind == RELATIONS
     assert es.t.tolist() == [2.0, 3.0, 5.0]  # later scan of each relation, s after the first pose
     assert es.error_m == pytest.approx([0.0, 0.2, 0.0], abs=1e-9)
+
+
+def test_verdict_table_rows_and_cheapest_of_the_ties() -> None:
+    from slamlab.report.sweep_report import _verdict_section
+
+    df = _table([(50, 0, 0.10), (50, 1, 0.12), (100, 0, 0.105), (100, 1, 0.125), (150, 0, 0.16), (150, 1, 0.16)])
+    df["cpu_time_s"] = [1.0, 1.2, 2.0, 2.2, 3.0, 3.0]
+    df["runtime_s"] = df["cpu_time_s"] * 3
+    section = _verdict_section(df, ["particles"], [])
+    rows = {r["label"]: r for r in section["rows"]}
+    assert [r["verdict"] for r in section["rows"]] == ["best", "tie", "worse"]
+    assert rows["particles=150"]["diff"] == "0.05 (+45.5 % of best)"  # 0.16 - 0.11, relative to the best's 0.11
+    assert rows["particles=50"]["cost"] == "1.1" and rows["particles=100"]["cost"] == "2.1"  # CPU, not wall
+    assert "cheapest is particles=50 (CPU time (s): 1.1" in section["cheapest"]

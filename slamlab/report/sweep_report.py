@@ -361,9 +361,10 @@ def _verdict_section(df: pd.DataFrame, params: Sequence[str], runs: Sequence[Run
     cost = {s.label: s for s in config_stats(df, params, cost_key)} if cost_key else {}
     unit_better = "lower" if METRIC_BY_KEY[verdict.key].better != "max" else "higher"
     rows = []
+    best_mean = verdict.standings[0].stat.mean
     for st in verdict.standings:
         c = cost.get(st.stat.label)
-        rel = f" ({st.diff / st.stat.mean * 100:+.1f} %)" if st.diff and st.stat.mean else ""
+        rel = f" ({st.diff / best_mean * 100:+.1f} % of best)" if st.diff and best_mean else ""
         rows.append({
             "label": st.stat.label, "n": st.stat.n, "verdict": st.verdict,
             "value": fmt_number(st.stat.mean) + ("" if math.isnan(st.stat.std) else f" ± {fmt_number(st.stat.std, 2)}"),
