@@ -50,30 +50,37 @@ def metric_panels(param: str, panels: Sequence[tuple[str, Sequence[Series]]],
     """One panel per headline metric against swept parameter `param`; each Series is one
     value of the other swept parameters (same colour in every panel, one legend on top).
     Bars: standard deviation across seeds; faint points: the single runs."""
-    n = len(panels)
-    ncols = min(PANELS_PER_ROW, n)
-    nrows = int(math.ceil(n / ncols))
-    height_in = 3.1 * nrows + 0.6  # 0.6 in on top for the legend
-    fig, axes = plt.subplots(nrows, ncols, figsize=(4.6 * ncols, height_in), squeeze=False)
-    fig.subplots_adjust(left=0.8 / (4.6 * ncols), right=1 - 0.2 / (4.6 * ncols), bottom=0.75 / height_in,
-                        top=1 - 0.6 / height_in, wspace=0.38, hspace=0.45)
     labels: dict[str, int] = {}
     for panel in panels:
         for s in panel[1]:
             labels.setdefault(s.label, len(labels))
+    legend = len(labels) > 1 or bool(labels and next(iter(labels)))
+    n = len(panels)
+    ncols = min(PANELS_PER_ROW, n)
+    nrows = int(math.ceil(n / ncols))
+    top_in = 0.25 + (0.25 * math.ceil(len(labels) / 4) if legend else 0.0)  # room for the legend rows
+    height_in = 3.1 * nrows + top_in
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.6 * ncols, height_in), squeeze=False)
+    fig.subplots_adjust(left=0.8 / (4.6 * ncols), right=1 - 0.2 / (4.6 * ncols), bottom=0.75 / height_in,
+                        top=1 - top_in / height_in, wspace=0.38, hspace=0.45)
     for ax, (metric_label, series) in zip(axes.flat, panels):
         for s in series:
             c = _colour(labels[s.label])
-            ax.scatter(s.points_x, s.points_y, s=12, color=c, alpha=0.4, lw=0)
-            ax.errorbar(s.x, s.mean, yerr=s.std, color=c, marker="o", ms=4, lw=1.3, capsize=3, label=s.label)
+            # Categories (resampler names) have no order: no connecting line, and each series
+            # shifted a little sideways so bars at the same category do not hide each other.
+            dx = 0.06 * (labels[s.label] - (len(labels) - 1) / 2) if categorical is not None else 0.0
+            ax.scatter(s.points_x + dx, s.points_y, s=12, color=c, alpha=0.4, lw=0)
+            ax.errorbar(s.x + dx, s.mean, yerr=s.std, color=c, marker="o", ms=4, lw=1.3, capsize=3, label=s.label,
+                        ls="none" if categorical is not None else "-")
         ax.set_xlabel(param)
         ax.set_ylabel(metric_label)
         ax.grid(alpha=0.3)
         if categorical is not None:
             ax.set_xticks(range(len(categorical)), categorical, rotation=20, fontsize=8)
+            ax.set_xlim(-0.5, len(categorical) - 0.5)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
-    if len(labels) > 1 or (labels and next(iter(labels))):
+    if legend:
         handles = [plt.Line2D([], [], color=_colour(i), marker="o", lw=1.3) for i in labels.values()]
         fig.legend(handles, list(labels), loc="upper center", bbox_to_anchor=(0.5, 1.0),
                    ncol=min(4, len(labels)), fontsize=9, frameon=False)
