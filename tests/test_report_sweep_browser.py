@@ -106,3 +106,21 @@ def test_full_height_screenshot(page, tmp_path: Path) -> None:
 
     with Image.open(png) as im:
         assert im.size == (1400, facts["height"]) and facts["height"] > 3000
+
+
+CLICK_TO_ENLARGE_JS = """
+function () {
+  var first = document.querySelector(".maps img"), box = document.getElementById("lightbox");
+  first.click();
+  var big = box.querySelector("img"), opened = box.classList.contains("open") && big !== null && big.src === first.src;
+  box.click();
+  return {opened: opened, closed: !box.classList.contains("open") && box.querySelector("img") === null,
+          fixed: getComputedStyle(box).position};
+}
+"""
+
+
+def test_a_map_enlarges_on_click(page) -> None:
+    html, _s, _facts = page
+    result = shots.page_facts(html, script=CLICK_TO_ENLARGE_JS)
+    assert result == {"opened": True, "closed": True, "fixed": "fixed"}
