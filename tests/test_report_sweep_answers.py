@@ -225,3 +225,10 @@ def test_verdict_table_rows_and_cheapest_of_the_ties() -> None:
     assert rows["particles=150"]["diff"] == "0.05 (+45.5 % of best)"  # 0.16 - 0.11, relative to the best's 0.11
     assert rows["particles=50"]["cost"] == "1.1" and rows["particles=100"]["cost"] == "2.1"  # CPU, not wall
     assert "cheapest is particles=50 (CPU time (s): 1.1" in section["cheapest"]
+
+
+def test_verdict_over_seeds_of_one_configuration_names_no_winner() -> None:
+    df = _table([(100, 0, 0.05), (100, 1, 0.07)])
+    v = sweep_verdict(df, [], "trajectory.rmse_m")
+    assert len(v.standings) == 1
+    assert v.summary == "One configuration (all runs): ATE RMSE (m) 0.06 ± 0.014 over 2 seeds; nothing to compare."

@@ -29,8 +29,9 @@ PANELS_PER_ROW = 3
 MIN_MAP_PX = 420  # a small map is enlarged by whole pixels up to this longest side
 
 
-def _colour(i: int):
-    return plt.get_cmap("tab10")(i % 10)
+def _colour(i: int, n: int = 10):
+    """The i-th of n distinct colours (tab10, tab20 beyond ten)."""
+    return plt.get_cmap("tab10")(i % 10) if n <= 10 else plt.get_cmap("tab20")(i % 20)
 
 
 def _png_uri(data: bytes) -> str:
@@ -107,8 +108,8 @@ def error_over_time(curves: Sequence[ErrorCurve], ylabel: str, smooth: bool) -> 
         y = c.error_m
         if smooth and y.size > 40:
             y = pd.Series(y).rolling(max(1, y.size // 40), center=True, min_periods=1).median().to_numpy()
-        ax.plot(c.t, y, lw=1.0, alpha=0.85, color=_colour(groups.index(c.group)))
-    handles = [plt.Line2D([], [], color=_colour(i), lw=1.6) for i in range(len(groups))]
+        ax.plot(c.t, y, lw=1.0, alpha=0.85, color=_colour(groups.index(c.group), len(groups)))
+    handles = [plt.Line2D([], [], color=_colour(i, len(groups)), lw=1.6) for i in range(len(groups))]
     ax.legend(handles, groups, loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
     ax.set_xlabel("time since the first scan (s)")
     ax.set_ylabel(ylabel)
