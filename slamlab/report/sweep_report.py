@@ -259,7 +259,8 @@ def seed_aggregate(df: pd.DataFrame, swept: Sequence[str], metric_keys: Sequence
     if not groups or max(len(g) for _, g in groups) < 2:
         return None
     extra = ("runtime_s", "scans_per_s", "neff_mean", "trajectory.mean_m")
-    keys = list(dict.fromkeys([k for k in metric_keys if k in ACCURACY_KEYS or k in extra] + headline_keys(df)))
+    wanted = {k for k in metric_keys if k in ACCURACY_KEYS or k in extra} | set(headline_keys(df))
+    keys = [m.key for m in METRICS if m.key in wanted]  # table order: CPU time beside wall time
     cols = [Column(k, False) for k in others] + [Column("n seeds")] + [Column(METRIC_BY_KEY[k].label) for k in keys]
     rows = []
     for vals, g in groups:
