@@ -237,6 +237,7 @@ def run_pipeline(
     run_dir.mkdir(parents=True, exist_ok=True)
     _claim(run_dir)
     t0 = time.perf_counter()
+    cpu0 = time.process_time()  # CPU s of this process: comparable when jobs share the cores
     try:
         require_values(cfg)
         components = validate_config(cfg)
@@ -244,11 +245,14 @@ def run_pipeline(
         seq = load_sequence(cfg.dataset)
         log.info("dataset %s: %d scans, %s RGB-D frames", seq.name, len(seq), seq.rgbd_count if seq.rgbd else "no")
         reporter = make_progress(progress, label="SLAM") if not callable(progress) else progress
+        cpu_slam0 = time.process_time()
         result = run_slam(seq, cfg, progress=reporter)
+        cpu_slam = time.process_time() - cpu_slam0
         if hasattr(reporter, "close"):
             reporter.close()
 
         metrics = filter_metrics(seq, result, cfg)
+        metrics["cpu_time_s"] = cpu_slam
         metrics.update(accuracy_metrics(seq, result))
         consistency, consistency_series = consistency_metrics(seq, result.trajectory, result.log_odds, components.map)
         metrics["consistency"] = consistency
@@ -275,6 +279,7 @@ def run_pipeline(
                 metrics["texture"] = {"status": "failed", "error": str(err)}
 
         metrics["total_runtime_s"] = time.perf_counter() - t0
+        metrics["total_cpu_time_s"] = time.process_time() - cpu0
         metrics["peak_memory_mb"] = peak_memory_mb()
         artifacts.write_json(run_dir / "manifest.json", build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
         artifacts.write_json(run_dir / "metrics.json", metrics)

@@ -73,7 +73,7 @@ def test_numbers_equal_metrics_files(built, sweep: Path) -> None:
 
 def test_swept_columns_best_marks_and_failures(built) -> None:
     page = built[0].read_text()
-    head = re.search(r"<thead><tr>(.*?)</tr></thead>", page, re.S).group(1)
+    head = re.search(r'id="runs-table">\s*<thead><tr>(.*?)</tr></thead>', page, re.S).group(1)
     headers = re.findall(r">([^<>]+)</th>", head)
     assert headers[:5] == ["run", "status", "particles", "seed", "error"]
     assert "dataset.duration_s" not in headers  # the same in every run: stated once, not a column

@@ -45,8 +45,16 @@ METRICS: tuple[MetricSpec, ...] = (
     # beside the accuracy they explain
     MetricSpec("weighting_overflows", "weight overflows", "min", hide_when_zero=True),
     MetricSpec("weighting_underflows", "weight underflows", "min", hide_when_zero=True),
-    MetricSpec("runtime_s", "runtime (s)", "min"),
-    MetricSpec("total_runtime_s", "total runtime (s)", "min"),
+    # Texture: mean |RGB - true floor colour| (0-255) on covered cells, along the SLAM path
+    # and, as the baseline it should beat, along the odometry path.
+    MetricSpec("texture.colour_error", "texture colour err", "min"),
+    MetricSpec("texture.odometry.colour_error", "texture err (odometry)", None),
+    MetricSpec("texture.covered_area_m2", "texture area (m²)", None, table=False),
+    # Wall time next to CPU time: wall time grows when jobs share the cores, CPU time does not.
+    MetricSpec("runtime_s", "wall time (s)", "min"),
+    MetricSpec("cpu_time_s", "CPU time (s)", "min"),
+    MetricSpec("total_runtime_s", "total wall (s)", "min"),
+    MetricSpec("total_cpu_time_s", "total CPU (s)", "min", table=False),
     MetricSpec("scans_per_s", "scans/s", "max"),
     MetricSpec("realtime_factor", "× real time", "max"),
     MetricSpec("peak_memory_mb", "peak memory (MB)", "min"),
@@ -60,6 +68,17 @@ METRIC_BY_KEY = {m.key: m for m in METRICS}
 
 # Accuracy metrics tried in order for the "error versus parameter" plots.
 ACCURACY_KEYS = ("trajectory.rmse_m", "relations.trans_abs_mean_m", "map.agreement")
+
+# The headline metrics of a sweep, one per question (accuracy, rotation, runtime, memory,
+# texture); within a group the first key the runs have is used. Runtime prefers CPU time
+# because wall time is not comparable between jobs that ran side by side.
+HEADLINE_GROUPS: tuple[tuple[str, ...], ...] = (
+    ACCURACY_KEYS + ("consistency.hit_fraction_mean",),
+    ("trajectory.rot_rmse_deg", "relations.rot_abs_mean_deg"),
+    ("cpu_time_s", "runtime_s"),
+    ("peak_memory_mb",),
+    ("texture.colour_error",),
+)
 
 
 def get_metric(metrics: dict[str, Any], key: str) -> float:

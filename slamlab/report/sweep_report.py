@@ -1,8 +1,10 @@
 """The comparison report over many runs: a sweep directory, several sweeps, or any runs.
 
 `build_sweep_report` finds run directories, tabulates them with pandas (swept values as
-columns, metrics, best values marked), and draws maps, overlaid trajectories and N_eff
-curves and metric-versus-parameter plots. A run that failed is listed with its error and
+columns, metrics, best values marked), opens with a verdict (the best configuration on the
+headline metric, ties within the seed-to-seed spread; sweep_stats.py), and draws
+headline-metric-versus-parameter plots, error over time, maps, overlaid trajectories and
+N_eff curves (sweep_figures.py, figures.py). A run that failed is listed with its error and
 never stops the report from being written.
 """
 
@@ -22,10 +24,12 @@ import pandas as pd
 import yaml
 
 from slamlab.errors import SlamlabError
-from slamlab.report import figures
-from slamlab.report.columns import ACCURACY_KEYS, METRIC_BY_KEY, METRICS, get_metric
+from slamlab.report import figures, sweep_figures
+from slamlab.report.columns import ACCURACY_KEYS, HEADLINE_GROUPS, METRIC_BY_KEY, METRICS, get_metric
+from slamlab.report.error_series import ATE, error_series
 from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
 from slamlab.report.rundir import (
+    GROUNDTRUTH_FILE,
     REPORT_FILE,
     STATUS_FAILED,
     STATUS_OK,
@@ -36,11 +40,20 @@ from slamlab.report.rundir import (
     load_run,
 )
 from slamlab.report.run_report import data_fingerprint
+from slamlab.report.sweep_stats import (
+    SEED_KEY,
+    config_groups,
+    config_label,
+    config_stats,
+    is_number,
+    runtime_check,
+    sweep_verdict,
+    value_text,
+)
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 
-SEED_KEY = "seed"
 MAX_SERIES = 8  # lines per metric-vs-parameter panel; more is unreadable
 
 
@@ -103,14 +116,6 @@ def _parse_value(v: Any) -> Any:
         return yaml.safe_load(v)
     except yaml.YAMLError:
         return v
-
-
-def _value_text(v: Any) -> str:
-    if v is None:
-        return "–"
-    if isinstance(v, (dict, list)):
-        return yaml.safe_dump(v, default_flow_style=True, width=10_000).strip()
-    return fmt_number(v)
 
 
 def run_labels(runs: Sequence[RunDir]) -> list[str]:
@@ -221,7 +226,7 @@ def html_table(df: pd.DataFrame, runs: Sequence[RunDir], swept: Sequence[str], o
         for k in swept:
             v = rec[k]
             num = isinstance(v, (int, float)) and not isinstance(v, bool)
-            cells.append(Cell(_value_text(v), "", repr(float(v)) if num else None))
+            cells.append(Cell(value_text(v), "", repr(float(v)) if num else None))
         if has_err:
             err = r.error if not r.ok and r.error else ""
             cells.append(Cell(err if len(err) <= 60 else err[:57] + "...", "err"))
@@ -233,13 +238,15 @@ def html_table(df: pd.DataFrame, runs: Sequence[RunDir], swept: Sequence[str], o
     return Table(cols, rows), metric_keys
 
 
-def _config_groups(df: pd.DataFrame, others: Sequence[str]) -> list[tuple[tuple, pd.DataFrame]]:
-    if not others:
-        return [((), df)]
-    keyed = df.assign(_g=df[list(others)].astype(str).agg(" ".join, axis=1))
+def headline_keys(df: pd.DataFrame) -> list[str]:
+    """The headline metrics these runs have: per HEADLINE_GROUPS question, the first key
+    with a value in a successful run (accuracy, rotation, runtime, memory, texture)."""
+    ok = df[df["status"] == STATUS_OK]
     out = []
-    for _, g in keyed.groupby("_g", sort=False):
-        out.append((tuple(g.iloc[0][k] for k in others), g))
+    for group in HEADLINE_GROUPS:
+        key = next((k for k in group if k in ok and ok[k].notna().any()), None)
+        if key is not None:
+            out.append(key)
     return out
 
 
@@ -249,15 +256,16 @@ def seed_aggregate(df: pd.DataFrame, swept: Sequence[str], metric_keys: Sequence
         return None
     ok = df[df["status"] == STATUS_OK]
     others = [k for k in swept if k != SEED_KEY]
-    groups = _config_groups(ok, others)
+    groups = config_groups(ok, others)
     if not groups or max(len(g) for _, g in groups) < 2:
         return None
-    keys = [k for k in metric_keys if k in ACCURACY_KEYS or k in ("runtime_s", "scans_per_s", "neff_mean", "trajectory.mean_m")]
+    extra = ("runtime_s", "scans_per_s", "neff_mean", "trajectory.mean_m")
+    wanted = {k for k in metric_keys if k in ACCURACY_KEYS or k in extra} | set(headline_keys(df))
+    keys = [m.key for m in METRICS if m.key in wanted]  # table order: CPU time beside wall time
     cols = [Column(k, False) for k in others] + [Column("n seeds")] + [Column(METRIC_BY_KEY[k].label) for k in keys]
     rows = []
     for vals, g in groups:
-        cells = [Cell(_value_text(v), "", repr(float(v)) if isinstance(v, (int, float)) and not isinstance(v, bool) else None)
-                 for v in vals]
+        cells = [Cell(value_text(v), "", repr(float(v)) if is_number(v) else None) for v in vals]
         cells.append(Cell(str(len(g)), "", str(len(g))))
         for k in keys:
             col = g[k].dropna()
@@ -270,46 +278,53 @@ def seed_aggregate(df: pd.DataFrame, swept: Sequence[str], metric_keys: Sequence
     return Table(cols, rows)
 
 
-def param_plots(df: pd.DataFrame, swept: Sequence[str], metric_keys: Sequence[str]) -> list[dict[str, str]]:
-    """Accuracy and runtime versus each swept parameter (seed excluded: it is averaged over).
-    Other swept parameters become separate lines; seeds become mean ± std with the points."""
+def _x_axis(values: Sequence[Any]) -> tuple[list[float], list[str] | None]:
+    """Positions of a parameter's values on a plot axis: numbers as numbers; anything else
+    (names, a value missing in some runs) as evenly spaced categories with tick labels."""
+    if all(is_number(v) and not math.isnan(float(v)) for v in values):
+        return [float(v) for v in values], None
+    # categories in run order: a sweep lists its values in the order the user chose (e.g. the
+    # ladder's steps), which says more than the alphabet; a missing value ("–") goes last
+    cats = sorted(dict.fromkeys(value_text(v) for v in values), key=lambda c: c == "–")
+    return [float(cats.index(value_text(v))) for v in values], cats
+
+
+def param_series(df: pd.DataFrame, param: str, others: Sequence[str], key: str) -> list[figures.Series]:
+    """Metric `key` of the successful runs against swept `param`: one Series per value of the
+    `others` swept parameters (so two parameters are never mixed into one line), each point
+    the mean ± std over seeds at one value of `param`. `df` needs an `_x` column: the plot
+    position of each run's `param` value (_x_axis)."""
+    ok = df[(df["status"] == STATUS_OK) & df[key].notna()]
+    series = []
+    for gvals, g in config_groups(ok, others)[:MAX_SERIES]:
+        stats = g.groupby("_x", sort=True)[key].agg(["mean", "std", "count"])
+        std = stats["std"].where(stats["count"] > 1, 0.0).to_numpy(float)
+        series.append(figures.Series(config_label(others, gvals) if others else "", stats.index.to_numpy(float),
+                                     stats["mean"].to_numpy(float), std, g["_x"].to_numpy(float),
+                                     g[key].to_numpy(float)))
+    return series
+
+
+def param_plots(df: pd.DataFrame, swept: Sequence[str]) -> list[dict[str, str]]:
+    """The headline metrics (headline_keys) versus each swept parameter (seed excluded: it is
+    averaged over), one line per value of the other swept parameters (param_series)."""
     ok = df[df["status"] == STATUS_OK]
     params = [k for k in swept if k != SEED_KEY]
-    if ok.empty or not params:
-        return []
-    panel_keys = [k for k in ACCURACY_KEYS if k in metric_keys][:1]
-    panel_keys += [k for k in ("runtime_s",) if k in metric_keys]
-    if not panel_keys:
+    keys = headline_keys(df)
+    if ok.empty or not params or not keys:
         return []
     out = []
     for p in params:
-        vals = [v for v in ok[p].tolist()]
-        numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals)
-        # categories in run order: a sweep lists its values in the order the user chose
-        # (e.g. the ladder's steps), which says more than the alphabet
-        cats = None if numeric else list(dict.fromkeys(str(v) for v in vals))
-        xmap = (lambda v: float(v)) if numeric else (lambda v, c=cats: float(c.index(str(v))))
+        xs, cats = _x_axis(ok[p].tolist())
+        ok_x = ok.assign(_x=xs)
         others = [k for k in params if k != p]
-        groups = _config_groups(ok, others)[:MAX_SERIES]
-        panels = []
-        for key in panel_keys:
-            series = []
-            for gvals, g in groups:
-                gx = np.array([xmap(v) for v in g[p]])
-                gy = g[key].to_numpy(dtype=float)
-                keep = ~np.isnan(gy)
-                gx, gy = gx[keep], gy[keep]
-                if gx.size == 0:
-                    continue
-                xs = np.unique(gx)
-                mean = np.array([gy[gx == x].mean() for x in xs])
-                std = np.array([gy[gx == x].std(ddof=1) if (gx == x).sum() > 1 else 0.0 for x in xs])
-                label = " ".join(f"{k}={_value_text(v)}" for k, v in zip(others, gvals))
-                series.append(figures.Series(label, xs, mean, std, gx, gy))
-            if series:
-                panels.append((METRIC_BY_KEY[key].label, series))
+        panels = [(METRIC_BY_KEY[k].label, s) for k in keys if (s := param_series(ok_x, p, others, k))]
         if panels:
-            out.append({"title": f"versus {p}", "img": figures.metric_vs_param(p, panels, cats)})
+            title = f"versus {p}" + (f", one line per {', '.join(others)}" if others else "")
+            n_lines = len(config_groups(ok, others))
+            if n_lines > MAX_SERIES:
+                title += f" (the first {MAX_SERIES} of {n_lines} combinations; the table has them all)"
+            out.append({"title": title, "img": sweep_figures.metric_panels(p, panels, cats)})
     return out
 
 
@@ -327,7 +342,7 @@ def _sweep_commands(runs: Sequence[RunDir]) -> list[str]:
 
 
 def _short_params(swept: Sequence[str], values: dict[str, list[Any]], i: int) -> str:
-    return " ".join(f"{k.split('.')[-1]}={_value_text(values[k][i])}" for k in swept)
+    return " ".join(f"{k.split('.')[-1]}={value_text(values[k][i])}" for k in swept)
 
 
 def _primary_metric(df: pd.DataFrame) -> str | None:
@@ -335,6 +350,151 @@ def _primary_metric(df: pd.DataFrame) -> str | None:
         if k in df and df.loc[df["status"] == STATUS_OK, k].notna().any():
             return k
     return None
+
+
+def _verdict_section(df: pd.DataFrame, params: Sequence[str], runs: Sequence[RunDir]) -> dict[str, Any] | None:
+    """The verdict on the headline metric, as the template shows it: summary sentence, the
+    cheapest of the best and its ties, and one row per configuration."""
+    keys = headline_keys(df)
+    if not keys or keys[0] not in METRIC_BY_KEY:
+        return None
+    verdict = sweep_verdict(df, params, keys[0])
+    if verdict is None:
+        return None
+    cost_key = next((k for k in ("cpu_time_s", "runtime_s") if df.loc[df["status"] == STATUS_OK, k].notna().any()), None)
+    cost = {s.label: s for s in config_stats(df, params, cost_key)} if cost_key else {}
+    unit_better = "lower" if METRIC_BY_KEY[verdict.key].better != "max" else "higher"
+    rows = []
+    best_mean = verdict.standings[0].stat.mean
+    for st in verdict.standings:
+        c = cost.get(st.stat.label)
+        rel = f" ({st.diff / best_mean * 100:+.1f} % of best)" if st.diff and best_mean else ""
+        rows.append({
+            "label": st.stat.label, "n": st.stat.n, "verdict": st.verdict,
+            "value": fmt_number(st.stat.mean) + ("" if math.isnan(st.stat.std) else f" ± {fmt_number(st.stat.std, 2)}"),
+            "diff": "–" if st.verdict == "best" else fmt_number(st.diff, 3) + rel,
+            "spread": "unknown" if math.isnan(st.spread) else fmt_number(st.spread, 2),
+            "cost": "–" if c is None else fmt_number(c.mean, 3),
+        })
+    contenders = [st.stat.label for st in verdict.standings if st.verdict in ("best", "tie")]
+    cheapest = ""
+    if cost_key and len(contenders) > 1 and all(c in cost for c in contenders):
+        pick = min(contenders, key=lambda c: cost[c].mean)
+        cheapest = (f"Of the best and its ties, the cheapest is {pick}"
+                    f" ({METRIC_BY_KEY[cost_key].label}: {fmt_number(cost[pick].mean, 3)}, mean over seeds).")
+    n_bad = sum(not r.ok for r in runs)
+    return {
+        "summary": verdict.summary, "cheapest": cheapest, "rows": rows, "label": verdict.label,
+        "better": unit_better, "cost_label": METRIC_BY_KEY[cost_key].label if cost_key else "cost",
+        "spread_known": verdict.spread_known,
+        "excluded": f"{n_bad} failed or incomplete run{'s' if n_bad != 1 else ''} not counted." if n_bad else "",
+    }
+
+
+def _error_over_time(runs: Sequence[RunDir], ok_idx: Sequence[int], groups: Sequence[str],
+                     labels: Sequence[str]) -> tuple[str | None, str]:
+    """Every run's error over time on one axis (sweep_figures.error_over_time) and its caption."""
+    curves, kinds = [], set()
+    for i in ok_idx:
+        es = _safe(f"error series of {labels[i]}", lambda i=i: error_series(runs[i]))
+        if es is not None and es.t.size:
+            curves.append(sweep_figures.ErrorCurve(groups[i], es.t, es.error_m))
+            kinds.add(es.kind)
+    if not curves:
+        return None, "No run has ground truth or relations, so there is no error over time."
+    if len(kinds) > 1:
+        return None, "Some runs are scored against ground truth and others against relations: not one axis."
+    if kinds == {ATE}:
+        ylabel, smooth = "position error (m)", False
+        note = ("Position error of the SLAM trajectory against ground truth at every pose (ATE per pose): "
+                "where the lines part is where a configuration went wrong.")
+    else:
+        ylabel, smooth = "relation error (m)", True
+        note = ("Translational error of every benchmark relation, at the time of its later scan, as a rolling "
+                "median over 1/40 of the relations: a rise marks where the map broke.")
+    note += " One colour per configuration; each of its seeds is a line of that colour."
+    return _safe("error over time", lambda: sweep_figures.error_over_time(curves, ylabel, smooth)), note
+
+
+def _run_maps(runs: Sequence[RunDir], ok_idx: Sequence[int], display: Sequence[str],
+              labels: Sequence[str]) -> list[dict[str, str]]:
+    """Each successful run's own map with its path (sweep_figures.run_map)."""
+    out = []
+    for i in ok_idx:
+        m = _safe(f"map of {labels[i]}", runs[i].load_map)
+        tr = _safe(f"trajectory of {labels[i]}", lambda i=i: runs[i].load_trajectory("slam"))
+        gt = _safe(f"ground truth of {labels[i]}", lambda i=i: runs[i].load_trajectory("groundtruth"))
+        if m is None:
+            continue
+        drawn = _safe(f"map figure of {labels[i]}", lambda m=m, tr=tr, gt=gt: sweep_figures.run_map(m, tr, gt))
+        if drawn is not None:
+            img, (w_m, h_m) = drawn
+            out.append({"title": display[i], "img": img, "size": f"{w_m:.0f} × {h_m:.0f} m"})
+    return out
+
+
+def _overlay(runs: Sequence[RunDir], ok_idx: Sequence[int], df: pd.DataFrame, display: Sequence[str],
+             labels: Sequence[str]) -> tuple[str | None, str]:
+    """Every SLAM path over one map (the most accurate run's); the caption names exactly what is drawn."""
+    datasets = {(runs[i].dataset, data_fingerprint(runs[i].manifest)) for i in ok_idx}
+    if not ok_idx:
+        return None, ""
+    if len(datasets) > 1:
+        return None, "Runs use different datasets, so their trajectories are not overlaid."
+    primary = _primary_metric(df)
+    bg = ok_idx[0]
+    if primary is not None:
+        col = df[primary].where(df["status"] == STATUS_OK)
+        bg = int(col.idxmin() if METRIC_BY_KEY[primary].better != "max" else col.idxmax())
+    paths = [(display[i], t) for i in ok_idx
+             if (t := _safe("trajectory", lambda i=i: runs[i].load_trajectory("slam"))) is not None]
+    if not paths:
+        return None, ""
+    gt = _safe("ground truth", lambda: runs[bg].load_trajectory("groundtruth"))
+    odo = _safe("odometry", lambda: runs[bg].load_trajectory("odometry"))
+    bg_map = _safe("map", runs[bg].load_map)
+    img = _safe("overlay", lambda: figures.trajectories_overlay(bg_map, f"run {labels[bg]}", paths, gt, odo))
+    drawn = ["one colour per run"]
+    if gt is not None:
+        drawn.insert(0, "black: ground truth")
+    if odo is not None:
+        drawn.append("dashed red: odometry")
+    where = (f"Background: the map of run {labels[bg]}" + (f" (best {METRIC_BY_KEY[primary].label})" if primary else "")
+             if bg_map is not None else "No map to draw beneath the paths")
+    note = f"{where}. {'; '.join(drawn).capitalize()}."
+    if gt is None:
+        note += " These runs have no ground truth."
+    return img, note
+
+
+def _neff(runs: Sequence[RunDir], ok_idx: Sequence[int], display: Sequence[str], labels: Sequence[str]) -> tuple[str | None, str]:
+    """N_eff curves; normalised by N when particle counts differ, else raw."""
+    curves = []
+    smooth_windows: list[int] = []
+    normalise = len({runs[i].particles for i in ok_idx}) > 1
+    for i in ok_idx:
+        steps = _safe(f"steps of {labels[i]}", runs[i].load_steps)
+        if steps is None or "neff" not in steps or not len(steps):
+            continue
+        t = figures.step_times(steps)
+        y = steps["neff"].to_numpy(float)
+        if normalise and runs[i].particles:
+            y = y / runs[i].particles
+        # N_eff saw-tooths between resamplings; overlaid raw, a dozen runs are a solid band.
+        # A centred rolling mean over ~1/50 of the run keeps the trend comparable.
+        win = max(1, len(y) // 50)
+        if win > 1:
+            y = pd.Series(y).rolling(win, center=True, min_periods=1).mean().to_numpy()
+        smooth_windows.append(win)
+        curves.append((display[i], t, y))
+    img = _safe("N_eff overlay", lambda: figures.neff_overlay(curves, "N_eff / N" if normalise else "N_eff")) if curves else None
+    note = ("N_eff divided by each run's particle count N, since N differs between runs."
+            if normalise else "N_eff per filter step of every run.")
+    if smooth_windows and max(smooth_windows) > 1:
+        lo, hi = min(smooth_windows), max(smooth_windows)
+        note += (f" Smoothed by a centred rolling mean over {lo if lo == hi else f'{lo}–{hi}'} steps"
+                 " (each run's report shows the raw curve with its resampling events).")
+    return img, note
 
 
 def build_sweep_report(
@@ -360,75 +520,23 @@ def build_sweep_report(
 
     display = [f"{labels[i]}: {_short_params(swept, values, i)}" if swept else labels[i] for i in range(len(runs))]
     ok_idx = [i for i, r in enumerate(runs) if r.ok]
+    params = [k for k in swept if k != SEED_KEY]  # a configuration = every swept value but the seed
+    groups = [config_label(params, [values[k][i] for k in params]) for i in range(len(runs))]
 
-    # Maps side by side, and every SLAM path over one map (the most accurate run's).
-    grid_items = []
-    for i in ok_idx:
-        m = _safe(f"map of {labels[i]}", runs[i].load_map)
-        tr = _safe(f"trajectory of {labels[i]}", lambda i=i: runs[i].load_trajectory("slam"))
-        if m is not None or tr is not None:
-            grid_items.append((display[i], m, tr))
-    grid_img = _safe("map grid", lambda: figures.map_grid(grid_items)) if grid_items else None
-
-    overlay_img, overlay_note = None, ""
-    datasets = {(runs[i].dataset, data_fingerprint(runs[i].manifest)) for i in ok_idx}
-    primary = _primary_metric(df)
-    if ok_idx:
-        bg = ok_idx[0]
-        if primary is not None:
-            col = df[primary].where(df["status"] == STATUS_OK)
-            if col.notna().any():
-                better = METRIC_BY_KEY[primary].better
-                bg = int(col.idxmin() if better != "max" else col.idxmax())
-        paths = [(display[i], t) for i in ok_idx
-                 if (t := _safe("trajectory", lambda i=i: runs[i].load_trajectory("slam"))) is not None]
-        if paths and len(datasets) == 1:
-            gt = _safe("ground truth", lambda: runs[bg].load_trajectory("groundtruth"))
-            odo = _safe("odometry", lambda: runs[bg].load_trajectory("odometry"))
-            overlay_img = _safe("overlay", lambda: figures.trajectories_overlay(
-                _safe("map", runs[bg].load_map), f"run {labels[bg]}", paths, gt, odo))
-            overlay_note = (f"Background: the map of run {labels[bg]}"
-                            + (f" (best {METRIC_BY_KEY[primary].label})" if primary else "")
-                            + ". Black: ground truth; dashed red: odometry; one colour per run.")
-        elif len(datasets) > 1:
-            overlay_note = "Runs use different datasets, so their trajectories are not overlaid."
-
-    # N_eff curves; normalised by N when particle counts differ, else raw.
-    curves = []
-    smooth_windows: list[int] = []
-    parts = {runs[i].particles for i in ok_idx}
-    normalise = len(parts) > 1
-    for i in ok_idx:
-        steps = _safe(f"steps of {labels[i]}", runs[i].load_steps)
-        if steps is None or "neff" not in steps or not len(steps):
-            continue
-        t = figures.step_times(steps)
-        y = steps["neff"].to_numpy(float)
-        if normalise and runs[i].particles:
-            y = y / runs[i].particles
-        # N_eff saw-tooths between resamplings; overlaid raw, a dozen runs are a solid band.
-        # A centred rolling mean over ~1/50 of the run keeps the trend comparable.
-        win = max(1, len(y) // 50)
-        if win > 1:
-            y = pd.Series(y).rolling(win, center=True, min_periods=1).mean().to_numpy()
-        smooth_windows.append(win)
-        curves.append((display[i], t, y))
-    neff_img = _safe("N_eff overlay", lambda: figures.neff_overlay(curves, "N_eff / N" if normalise else "N_eff")) if curves else None
-    neff_note = ("N_eff divided by each run's particle count N, since N differs between runs."
-                 if normalise else "N_eff per filter step of every run.")
-    if smooth_windows and max(smooth_windows) > 1:
-        lo, hi = min(smooth_windows), max(smooth_windows)
-        neff_note += (f" Smoothed by a centred rolling mean over {lo if lo == hi else f'{lo}–{hi}'} steps"
-                      " (each run's report shows the raw curve with its resampling events).")
-
-    plots = _safe("parameter plots", lambda: param_plots(df, swept, metric_keys)) or []
+    verdict = _safe("verdict", lambda: _verdict_section(df, params, runs))
+    runtime = _safe("runtime check", lambda: runtime_check(df, runs))
+    errors_img, errors_note = _error_over_time(runs, ok_idx, groups, labels)
+    maps = _run_maps(runs, ok_idx, display, labels)
+    overlay_img, overlay_note = _overlay(runs, ok_idx, df, display, labels)
+    neff_img, neff_note = _neff(runs, ok_idx, display, labels)
+    plots = _safe("parameter plots", lambda: param_plots(df, swept)) or []
     aggregate = _safe("seed aggregate", lambda: seed_aggregate(df, swept, metric_keys))
 
     diff = config_differences(runs)
     diff_table = None
     if diff:
         diff_table = {"columns": ["run", *diff.keys()],
-                      "rows": [[labels[i], *(_value_text(diff[k][i]) for k in diff)] for i in range(len(runs))]}
+                      "rows": [[labels[i], *(value_text(diff[k][i]) for k in diff)] for i in range(len(runs))]}
     base = next((r.config for r in runs if r.config), None)
 
     failed = [{"label": labels[i], "status": r.status, "error": r.error or "", "log_tail": r.log_tail,
@@ -448,15 +556,20 @@ def build_sweep_report(
         sources=[str(d) for d in dirs],
         sweep_cmds=_sweep_commands(runs),
         common=" ".join(common),
+        verdict=verdict,
+        runtime=runtime,
         table=table,
         failed=failed,
         param_plots=plots,
         param_note=("Points: single runs; markers with bars: mean ± standard deviation across seeds."
                     if SEED_KEY in swept else "One point per run."),
         aggregate=aggregate,
+        errors_img=errors_img,
+        errors_note=errors_note,
+        maps=maps,
+        has_groundtruth=any(runs[i].file(GROUNDTRUTH_FILE) is not None for i in ok_idx),
         overlay_img=overlay_img,
         overlay_note=overlay_note,
-        grid_img=grid_img,
         neff_img=neff_img,
         neff_note=neff_note,
         diff=diff_table,
