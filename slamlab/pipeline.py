@@ -24,6 +24,7 @@ from omegaconf import DictConfig, OmegaConf
 from slamlab import artifacts
 from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.frames import Relations, Sequence
+from slamlab.interrupt import RunInterrupted, StopOnSigint
 from slamlab.manifest import build_manifest
 from slamlab.progress import make_progress
 from slamlab.slam.result import SlamResult
@@ -80,19 +81,36 @@ def peak_memory_mb() -> float:
     return kb / 1024.0 if sys.platform != "darwin" else kb / 1024.0 / 1024.0
 
 
-def _claim(run_dir: Path) -> None:
-    """Make `run_dir` this run's own, or refuse if another run holds it."""
-    taken = [m for m in RUN_MARKERS if (run_dir / m).exists()]
+def claim_run_dir(run_dir: Path) -> None:
+    """Make `run_dir` this process's own, or raise RunDirectoryInUse if another run holds it.
+
+    The claim file is created exclusively (O_EXCL, atomic) and holds the claiming process's
+    id, so of two runs started together only one gets the folder, and the process that
+    claimed it early (the CLI, before Hydra writes `.hydra/`) may claim it again here."""
+    run_dir = Path(run_dir)
+    taken = [m for m in RUN_MARKERS if m != CLAIM_FILE and (run_dir / m).exists()]
     if not taken:
-        try:  # O_EXCL: atomic, so of two runs started together only one gets the folder
-            os.close(os.open(run_dir / CLAIM_FILE, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        try:
+            fd = os.open(run_dir / CLAIM_FILE, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+            os.write(fd, str(os.getpid()).encode())
+            os.close(fd)
             return
         except FileExistsError:
+            if claimed_by_this_process(run_dir):
+                return
             taken = [CLAIM_FILE]
     raise RunDirectoryInUse(
         f"{run_dir} already holds a run ({', '.join(taken)}); slamlab never overwrites a run. "
         "Choose another hydra.run.dir."
     )
+
+
+def claimed_by_this_process(run_dir: Path) -> bool:
+    """True if `run_dir`'s claim file names this process."""
+    try:
+        return (Path(run_dir) / CLAIM_FILE).read_text().strip() == str(os.getpid())
+    except OSError:
+        return False
 
 
 def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> dict:
@@ -208,17 +226,23 @@ def run_pipeline(
 
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    _claim(run_dir)
+    claim_run_dir(run_dir)
     t0 = time.perf_counter()
+    stopper: StopOnSigint | None = None
+    metrics: dict | None = None
     try:
         require_values(cfg)
         validate_config(cfg)
         seq = load_sequence(cfg.dataset)
         log.info("dataset %s: %d scans, %s RGB-D frames", seq.name, len(seq), seq.rgbd_count if seq.rgbd else "no")
         reporter = make_progress(progress, label="SLAM") if not callable(progress) else progress
-        result = run_slam(seq, cfg, progress=reporter)
-        if hasattr(reporter, "close"):
-            reporter.close()
+        stopper = StopOnSigint(reporter)
+        try:
+            with stopper:  # Ctrl-C here stops after the current step, keeping the run so far
+                result = run_slam(seq, cfg, progress=stopper)
+        finally:
+            if hasattr(reporter, "close"):
+                reporter.close()
 
         metrics = filter_metrics(seq, result, cfg)
         metrics.update(accuracy_metrics(seq, result))
@@ -231,6 +255,9 @@ def run_pipeline(
         if seq.ground_truth is not None:
             artifacts.write_tum(run_dir / "groundtruth.tum", result.times, seq.ground_truth.poses[: len(result.times)])
         artifacts.write_steps(run_dir, result.steps)
+        artifacts.write_json(run_dir / "manifest.json", build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
+        if stopper.requested:
+            raise KeyboardInterrupt
 
         from slamlab.texture.pipeline import texture_enabled
 
@@ -244,8 +271,10 @@ def run_pipeline(
 
         metrics["total_runtime_s"] = time.perf_counter() - t0
         metrics["peak_memory_mb"] = peak_memory_mb()
-        artifacts.write_json(run_dir / "manifest.json", build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
         artifacts.write_json(run_dir / "metrics.json", metrics)
+    except KeyboardInterrupt:
+        artifacts.remove_partials(run_dir)
+        raise _record_interruption(run_dir, stopper, metrics) from None
     except BaseException as exc:
         artifacts.remove_partials(run_dir)
         _write_failure(run_dir, exc)
@@ -256,14 +285,33 @@ def run_pipeline(
     return metrics
 
 
+def _record_interruption(run_dir: Path, stopper: StopOnSigint | None, metrics: dict | None) -> RunInterrupted:
+    """metrics.json for a Ctrl-C'd run (status "interrupted"; with the SLAM metrics and
+    "partial": true when the map and trajectory so far were written), and the user's line."""
+    done, total = (stopper.done, stopper.total) if stopper else (0, 0)
+    if metrics is None:  # nothing computed yet (loading, or a second Ctrl-C mid-step)
+        where = f"at scan {done}/{total}" if total else "before the first scan"
+        message = f"interrupted {where}; no results in {run_dir}"
+        info: dict = {"status": "interrupted", "error": message}
+    else:
+        stage = "" if done < total else " after the SLAM loop"
+        message = f"interrupted at scan {done}/{total}{stage}; partial results in {run_dir}"
+        info = {**metrics, "status": "interrupted", "error": message, "partial": True}
+    info.update(interrupted_at_scan=done, scans_total=total)
+    try:
+        artifacts.write_json(run_dir / "metrics.json", info)
+    except OSError:
+        pass
+    return RunInterrupted(message)
+
+
 def _write_failure(run_dir: Path, exc: BaseException) -> None:
     """metrics.json with the error, so sweep reports show the failed run."""
     if (run_dir / "metrics.json").exists():
         return
     err = user_error(exc)
-    status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
-    info = {"status": status, "error": str(err or exc) or type(exc).__name__}
-    if err is None and not isinstance(exc, KeyboardInterrupt):
+    info = {"status": "failed", "error": str(err or exc) or type(exc).__name__}
+    if err is None:
         info["traceback"] = "".join(traceback.format_exception(exc))
     try:
         artifacts.write_json(run_dir / "metrics.json", info)
