@@ -16,6 +16,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
+from slamlab.cli.overrides import check_overrides
 from slamlab.errors import SlamlabError
 from slamlab.interrupt import EXIT_INTERRUPTED, RunInterrupted
 from slamlab.pipeline import (
@@ -115,6 +116,10 @@ def _exit_if_sweep_runs_failed() -> None:
 
 def main() -> None:
     """Console entry point."""
+    mistake = check_overrides(sys.argv[1:])
+    if mistake:
+        print(f"slamlab: {mistake}", file=sys.stderr)
+        sys.exit(2)
     claimed = _claim_given_run_dir(sys.argv[1:])
     try:
         _hydra_main()
