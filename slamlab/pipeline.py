@@ -13,6 +13,7 @@ import resource
 import sys
 import time
 import traceback
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from slamlab import artifacts
+from slamlab.datasets.stamps import repeated_stamps
 from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.frames import Relations, Sequence
 from slamlab.interrupt import RunInterrupted, StopOnSigint
@@ -55,16 +57,23 @@ def user_error(exc: BaseException) -> SlamlabError | None:
 def load_sequence(dataset_cfg: DictConfig) -> Sequence:
     """Build the dataset named by the `dataset` config group (`_target_` loader)."""
     try:
-        seq = instantiate(dataset_cfg, _convert_="all")
+        with warnings.catch_warnings(record=True) as caught:  # to the run's log, one line each
+            warnings.simplefilter("always")
+            seq = instantiate(dataset_cfg, _convert_="all")
     except InstantiationException as exc:
         err = user_error(exc)
         if err is not None:
             raise err from None
         raise
+    for w in caught:
+        log.warning("%s", w.message)
     if not isinstance(seq, Sequence):
         raise ConfigError("dataset._target_", f"must return a slamlab Sequence, got {type(seq).__name__}")
     if len(seq) == 0:
         raise DataError(",".join(seq.sources) or seq.name, "the log holds no scans")
+    repeated = repeated_stamps(np.array([s.t for s in seq.scans]), ",".join(seq.sources) or seq.name)
+    if repeated:
+        log.warning("%s", repeated)
     return seq
 
 
