@@ -9,8 +9,6 @@ from __future__ import annotations
 import logging
 import math
 import os
-import resource
-import sys
 import time
 import traceback
 import warnings
@@ -28,6 +26,7 @@ from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.frames import Relations, Sequence
 from slamlab.interrupt import RunInterrupted, StopOnSigint
 from slamlab.manifest import build_manifest
+from slamlab.memory import RunPeakMemory
 from slamlab.progress import make_progress
 from slamlab.slam.result import SlamResult
 
@@ -82,12 +81,6 @@ def require_values(cfg: DictConfig) -> None:
     missing = sorted(k for k in OmegaConf.missing_keys(cfg) if not k.startswith("hydra."))
     if missing:
         raise ConfigError(missing[0], f"is required: give it on the command line, e.g. {missing[0]}=...")
-
-
-def peak_memory_mb() -> float:
-    """Peak resident set size of this process (MB)."""
-    kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return kb / 1024.0 if sys.platform != "darwin" else kb / 1024.0 / 1024.0
 
 
 def claim_run_dir(run_dir: Path) -> None:
@@ -237,6 +230,7 @@ def run_pipeline(
     run_dir.mkdir(parents=True, exist_ok=True)
     claim_run_dir(run_dir)
     t0 = time.perf_counter()
+    memory = RunPeakMemory()  # this run's own peak, also when a sweep runs many in one process
     stopper: StopOnSigint | None = None
     metrics: dict | None = None
     try:
@@ -279,7 +273,8 @@ def run_pipeline(
                 metrics["texture"] = {"status": "failed", "error": str(err)}
 
         metrics["total_runtime_s"] = time.perf_counter() - t0
-        metrics["peak_memory_mb"] = peak_memory_mb()
+        metrics["peak_memory_mb"] = memory.peak_mb()
+        metrics["peak_memory_scope"] = memory.scope
         artifacts.write_json(run_dir / "metrics.json", metrics)
     except KeyboardInterrupt:
         artifacts.remove_partials(run_dir)
