@@ -277,9 +277,11 @@ def run_pipeline(
         metrics["peak_memory_scope"] = memory.scope
         artifacts.write_json(run_dir / "metrics.json", metrics)
     except KeyboardInterrupt:
+        memory.peak_mb()  # stops its sampling thread, if any
         artifacts.remove_partials(run_dir)
         raise _record_interruption(run_dir, stopper, metrics) from None
     except BaseException as exc:
+        memory.peak_mb()
         artifacts.remove_partials(run_dir)
         _write_failure(run_dir, exc)
         raise

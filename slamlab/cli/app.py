@@ -76,8 +76,8 @@ def _claim_given_run_dir(argv: list[str]) -> tuple[Path, bool] | None:
     if "-m" in argv or "--multirun" in argv:
         return None  # sweeps write into hydra.sweep.dir; every job claims its own folder
     dirs = [arg.split("=", 1)[1] for arg in argv if arg.startswith("hydra.run.dir=")]
-    if not dirs:
-        return None  # the default folder has microseconds in its name: never shared
+    if not dirs or "${" in dirs[-1]:
+        return None  # the default folder has microseconds in its name; interpolations resolve later
     run_dir = Path(dirs[-1])
     created = not run_dir.exists()
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -105,7 +105,8 @@ def _release_unused_claim(claimed: tuple[Path, bool] | None) -> None:
 
 
 def _exit_if_sweep_runs_failed() -> None:
-    """After a sweep (and its report): a failed job makes the whole command fail, last line first."""
+    """After a sweep (and its report): a failed job makes the whole command fail, and the
+    last line names the failed jobs and their errors."""
     from slamlab.report.callback import LAST_SWEEP
 
     failed = LAST_SWEEP["failed"]
