@@ -16,6 +16,8 @@ from pathlib import Path
 import yaml
 from omegaconf import OmegaConf
 
+from slamlab.run_compare import first_nested_difference, value_at
+
 PRESET_GROUP = "experiment"
 # Keys that say where inputs and outputs live, or how the run is displayed: they change no result.
 PATH_KEYS = frozenset({
@@ -51,23 +53,6 @@ def read_origin(run_dir: Path) -> RunOrigin:
     return RunOrigin(presets[-1] if presets else None, rest)
 
 
-def _first_config_difference(run: object, preset: object, path: str = "") -> str | None:
-    if isinstance(run, dict) and isinstance(preset, dict):
-        for k in sorted(set(run) | set(preset), key=str):
-            key = f"{path}.{k}" if path else str(k)
-            if key in PATH_KEYS:
-                continue
-            if k not in run or k not in preset:
-                return f"'{key}' is in {'the run' if k in run else 'the preset'} only"
-            diff = _first_config_difference(run[k], preset[k], key)
-            if diff:
-                return diff
-        return None
-    if run != preset:
-        return f"'{path}' is {run!r} in the run, {preset!r} in the preset"
-    return None
-
-
 def compose_preset(name: str, overrides: list[str]):
     """The preset's config as today's config files compose it, with the given overrides."""
     from hydra import compose, initialize_config_module
@@ -91,8 +76,14 @@ def preset_violation(run_dir: Path, preset: str) -> str | None:
         frozen = compose_preset(preset, origin.overrides)
     except HydraException as exc:
         return f"preset {preset!r} cannot be composed: {str(exc).splitlines()[0]}"
-    saved = OmegaConf.load(Path(run_dir) / ".hydra" / "config.yaml")
-    diff = _first_config_difference(
-        OmegaConf.to_container(saved, resolve=False), OmegaConf.to_container(frozen, resolve=False)
-    )
-    return f"the run's saved config differs from the {preset} preset: {diff}" if diff else None
+    saved = OmegaConf.to_container(OmegaConf.load(Path(run_dir) / ".hydra" / "config.yaml"), resolve=False)
+    wanted = OmegaConf.to_container(frozen, resolve=False)
+    diff = first_nested_difference(saved, wanted, lambda _, key: key in PATH_KEYS)
+    if diff is None:
+        return None
+    key, what = diff
+    if what == "value":
+        why = f"'{key}' is {value_at(saved, key)!r} in the run, {value_at(wanted, key)!r} in the preset"
+    else:
+        why = f"'{key}' is in {'the run' if what == 'only a' else 'the preset'} only"
+    return f"the run's saved config differs from the {preset} preset: {why}"

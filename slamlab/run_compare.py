@@ -49,22 +49,42 @@ def first_text_difference(a: Path, b: Path) -> str | None:
     return f"{a.name}: {len(la)} lines originally, {len(lb)} in the re-run"
 
 
-def first_metric_difference(a: object, b: object, path: str = "") -> str | None:
-    """Compare metrics recursively, skipping volatile (timing/memory) keys."""
+def first_nested_difference(
+    a: object, b: object, skip: Callable[[str, str], bool], path: str = ""
+) -> tuple[str, str] | None:
+    """The first place where nested dicts `a` and `b` differ, as (dotted key, what), with
+    what = "only a" / "only b" / "value"; keys where `skip(key, dotted key)` is true are
+    ignored. None when equal."""
     if isinstance(a, dict) and isinstance(b, dict):
-        for k in sorted(set(a) | set(b)):
-            if VOLATILE.search(k):
+        for k in sorted(set(a) | set(b), key=str):
+            key = f"{path}.{k}" if path else str(k)
+            if skip(str(k), key):
                 continue
-            key = f"{path}.{k}" if path else k
             if k not in a or k not in b:
-                return f"metrics.json '{key}' present in only one run"
-            diff = first_metric_difference(a[k], b[k], key)
+                return key, "only a" if k in a else "only b"
+            diff = first_nested_difference(a[k], b[k], skip, key)
             if diff:
                 return diff
         return None
-    if a != b:
-        return f"metrics.json '{path}': original {a!r}, re-run {b!r}"
-    return None
+    return (path, "value") if a != b else None
+
+
+def value_at(d: object, key: str) -> object:
+    """`d["a"]["b"]` for key "a.b"."""
+    for part in key.split("."):
+        d = d[part]  # type: ignore[index]
+    return d
+
+
+def first_metric_difference(a: dict, b: dict) -> str | None:
+    """Compare metrics recursively, skipping volatile (timing/memory) keys."""
+    diff = first_nested_difference(a, b, lambda k, _: bool(VOLATILE.search(k)))
+    if diff is None:
+        return None
+    key, what = diff
+    if what != "value":
+        return f"metrics.json '{key}' present in only one run"
+    return f"metrics.json '{key}': original {value_at(a, key)!r}, re-run {value_at(b, key)!r}"
 
 
 def _metrics_difference(a: Path, b: Path) -> str | None:

@@ -3,19 +3,16 @@ meant, not Hydra's `+key=value` advice (which would run with the default) or its
 
 from __future__ import annotations
 
-import os
 import subprocess
-import sys
 
 import pytest
 
+from cli_helpers import slamlab_cli
 from slamlab.cli.overrides import check_overrides
 
 
 def slamlab(args: list[str], tmp_path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "MPLBACKEND": "Agg"}
-    return subprocess.run([sys.executable, "-m", "slamlab.cli.app", *args, f"hydra.run.dir={tmp_path / 'r'}"],
-                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    return slamlab_cli([*args, f"hydra.run.dir={tmp_path / 'r'}"], tmp_path, timeout=120)
 
 
 @pytest.mark.parametrize("args, message", [

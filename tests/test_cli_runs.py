@@ -5,24 +5,21 @@ with a failing job."""
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
-import sys
-import time
 from pathlib import Path
 
 import yaml
 
+from cli_helpers import slamlab_start
 from slamlab import artifacts
+from slamlab.report.rundir import load_run
 
 QUICK = ["steps.max_scans=300", "texture=none", "report=false", "progress=off", "dataset.duration_s=20"]
 
 
 def start(args: list[str], cwd: Path, cache: Path) -> subprocess.Popen:
-    env = {**os.environ, "SLAMLAB_CACHE_DIR": str(cache), "MPLBACKEND": "Agg"}
-    return subprocess.Popen([sys.executable, "-m", "slamlab.cli.app", *args], cwd=cwd, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return slamlab_start(args, cwd, cache)
 
 
 def test_two_runs_started_together_into_one_folder(tmp_path, sim_cache):
@@ -58,10 +55,8 @@ def test_a_refused_config_gives_the_folder_back(tmp_path, sim_cache):
 def test_ctrl_c_keeps_the_partial_run_and_says_where(tmp_path, sim_cache):
     run = tmp_path / "run"
     p = start(["progress=log", "report=false", f"hydra.run.dir={run}"], tmp_path, sim_cache)
-    deadline = time.time() + 600
-    seen = ""
-    while "SLAM  10%" not in seen and time.time() < deadline:  # the filter is running
-        seen += p.stderr.readline()
+    while "SLAM  10%" not in p.stderr.readline():  # until the filter is running
+        assert p.poll() is None
     p.send_signal(signal.SIGINT)
     rest = p.stderr.read()
     assert p.wait(timeout=120) == 130
@@ -76,6 +71,17 @@ def test_ctrl_c_keeps_the_partial_run_and_says_where(tmp_path, sim_cache):
     assert len(times) == k == m["scans"]
     assert artifacts.read_map(run).data.any()
     assert not list(run.glob(f"{artifacts.TMP_MARK}*"))
+
+
+def test_a_killed_run_stays_incomplete(tmp_path, sim_cache):
+    run = tmp_path / "run"
+    p = start(["progress=log", "report=false", "texture=none", f"hydra.run.dir={run}"], tmp_path, sim_cache)
+    while "SLAM  10%" not in p.stderr.readline():
+        assert p.poll() is None
+    p.send_signal(signal.SIGKILL)
+    p.wait(timeout=60)
+    loaded = load_run(run)  # what the reports show
+    assert loaded.status == "incomplete" and not (run / "metrics.json").exists()
 
 
 def test_a_sweep_with_a_failing_job_fails_after_its_report(tmp_path, sim_cache):

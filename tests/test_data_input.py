@@ -8,12 +8,12 @@ import json
 import os
 import pickle
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from cli_helpers import slamlab_cli
 from slamlab.datasets.calibration import load_kinect_calibration
 from slamlab.datasets.carmen import load_carmen
 from slamlab.datasets.sim.calib import default_calibration, write_camera_params
@@ -46,12 +46,8 @@ def room_log(times: list[float] | None = None) -> list[str]:
 
 
 def slamlab(args: list[str], tmp_path: Path, cache: Path | None = None) -> subprocess.CompletedProcess:
-    env = {**os.environ, "MPLBACKEND": "Agg"}
-    if cache is not None:
-        env["SLAMLAB_CACHE_DIR"] = str(cache)
     quick = ["particles=5", "texture=none", "report=false", "progress=off"]
-    return subprocess.run([sys.executable, "-m", "slamlab.cli.app", *quick, *args], cwd=tmp_path, env=env,
-                          capture_output=True, text=True, timeout=600)
+    return slamlab_cli([*quick, *args], tmp_path, cache, timeout=600)
 
 
 def warnings_in(stderr: str) -> list[str]:

@@ -4,10 +4,8 @@ overrides are printed, and `--preset NAME` refuses runs that changed the preset.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,21 +13,18 @@ import pytest
 import yaml
 from PIL import Image
 
+from cli_helpers import slamlab_cli, verify_cli
 from slamlab.run_compare import compare_runs
 
 SHORT = ["dataset.duration_s=20", "particles=10", "steps.max_scans=200", "report=false"]
 
 
 def slamlab(args: list[str], cwd: Path, cache: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "SLAMLAB_CACHE_DIR": str(cache), "MPLBACKEND": "Agg"}
-    return subprocess.run([sys.executable, "-m", "slamlab.cli.app", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=900)
+    return slamlab_cli(args, cwd, cache)
 
 
 def verify(args: list[str], cache: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "SLAMLAB_CACHE_DIR": str(cache), "MPLBACKEND": "Agg"}
-    return subprocess.run([sys.executable, "-m", "slamlab.cli.verify", *args], env=env,
-                          capture_output=True, text=True, timeout=900)
+    return verify_cli(args, cache)
 
 
 @pytest.fixture(scope="module")
