@@ -18,6 +18,7 @@ class DataError(SlamlabError):
 
     def __init__(self, path: object, message: str, record: object | None = None, field: str | None = None):
         self.path = str(path)
+        self.message = message
         self.record = record
         self.field = field
         where = self.path

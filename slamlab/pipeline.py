@@ -9,10 +9,9 @@ from __future__ import annotations
 import logging
 import math
 import os
-import resource
-import sys
 import time
 import traceback
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -22,9 +21,12 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from slamlab import artifacts
+from slamlab.datasets.stamps import repeated_stamps
 from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.frames import Relations, Sequence
+from slamlab.interrupt import RunInterrupted, StopOnSigint
 from slamlab.manifest import build_manifest
+from slamlab.memory import RunPeakMemory
 from slamlab.progress import make_progress
 from slamlab.slam.result import SlamResult
 
@@ -54,16 +56,23 @@ def user_error(exc: BaseException) -> SlamlabError | None:
 def load_sequence(dataset_cfg: DictConfig) -> Sequence:
     """Build the dataset named by the `dataset` config group (`_target_` loader)."""
     try:
-        seq = instantiate(dataset_cfg, _convert_="all")
+        with warnings.catch_warnings(record=True) as caught:  # to the run's log, one line each
+            warnings.simplefilter("always")
+            seq = instantiate(dataset_cfg, _convert_="all")
     except InstantiationException as exc:
         err = user_error(exc)
         if err is not None:
             raise err from None
         raise
+    for w in caught:
+        log.warning("%s", w.message)
     if not isinstance(seq, Sequence):
         raise ConfigError("dataset._target_", f"must return a slamlab Sequence, got {type(seq).__name__}")
     if len(seq) == 0:
         raise DataError(",".join(seq.sources) or seq.name, "the log holds no scans")
+    repeated = repeated_stamps(np.array([s.t for s in seq.scans]), ",".join(seq.sources) or seq.name)
+    if repeated:
+        log.warning("%s", repeated)
     return seq
 
 
@@ -74,25 +83,36 @@ def require_values(cfg: DictConfig) -> None:
         raise ConfigError(missing[0], f"is required: give it on the command line, e.g. {missing[0]}=...")
 
 
-def peak_memory_mb() -> float:
-    """Peak resident set size of this process (MB)."""
-    kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return kb / 1024.0 if sys.platform != "darwin" else kb / 1024.0 / 1024.0
+def claim_run_dir(run_dir: Path) -> None:
+    """Make `run_dir` this process's own, or raise RunDirectoryInUse if another run holds it.
 
-
-def _claim(run_dir: Path) -> None:
-    """Make `run_dir` this run's own, or refuse if another run holds it."""
-    taken = [m for m in RUN_MARKERS if (run_dir / m).exists()]
+    The claim file is created exclusively (O_EXCL, atomic) and holds the claiming process's
+    id, so of two runs started together only one gets the folder, and the process that
+    claimed it early (the CLI, before Hydra writes `.hydra/`) may claim it again here."""
+    run_dir = Path(run_dir)
+    taken = [m for m in RUN_MARKERS if m != CLAIM_FILE and (run_dir / m).exists()]
     if not taken:
-        try:  # O_EXCL: atomic, so of two runs started together only one gets the folder
-            os.close(os.open(run_dir / CLAIM_FILE, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        try:
+            fd = os.open(run_dir / CLAIM_FILE, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+            os.write(fd, str(os.getpid()).encode())
+            os.close(fd)
             return
         except FileExistsError:
+            if claimed_by_this_process(run_dir):
+                return
             taken = [CLAIM_FILE]
     raise RunDirectoryInUse(
         f"{run_dir} already holds a run ({', '.join(taken)}); slamlab never overwrites a run. "
         "Choose another hydra.run.dir."
     )
+
+
+def claimed_by_this_process(run_dir: Path) -> bool:
+    """True if `run_dir`'s claim file names this process."""
+    try:
+        return (Path(run_dir) / CLAIM_FILE).read_text().strip() == str(os.getpid())
+    except OSError:
+        return False
 
 
 def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> dict:
@@ -235,9 +255,12 @@ def run_pipeline(
 
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    _claim(run_dir)
+    claim_run_dir(run_dir)
     t0 = time.perf_counter()
     cpu0 = time.process_time()  # CPU s of this process: comparable when jobs share the cores
+    memory = RunPeakMemory()  # this run's own peak, also when a sweep runs many in one process
+    stopper: StopOnSigint | None = None
+    metrics: dict | None = None
     try:
         require_values(cfg)
         components = validate_config(cfg)
@@ -245,11 +268,15 @@ def run_pipeline(
         seq = load_sequence(cfg.dataset)
         log.info("dataset %s: %d scans, %s RGB-D frames", seq.name, len(seq), seq.rgbd_count if seq.rgbd else "no")
         reporter = make_progress(progress, label="SLAM") if not callable(progress) else progress
+        stopper = StopOnSigint(reporter)
         cpu_slam0 = time.process_time()
-        result = run_slam(seq, cfg, progress=reporter)
+        try:
+            with stopper:  # Ctrl-C here stops after the current step, keeping the run so far
+                result = run_slam(seq, cfg, progress=stopper)
+        finally:
+            if hasattr(reporter, "close"):
+                reporter.close()
         cpu_slam = time.process_time() - cpu_slam0
-        if hasattr(reporter, "close"):
-            reporter.close()
 
         metrics = filter_metrics(seq, result, cfg)
         metrics["cpu_time_s"] = cpu_slam
@@ -267,6 +294,9 @@ def run_pipeline(
         artifacts.write_steps(run_dir, result.steps)
         artifacts.write_consistency(run_dir, consistency_series)
         write_recordings(run_dir, result, cfg)
+        artifacts.write_json(run_dir / "manifest.json", build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
+        if stopper.requested:
+            raise KeyboardInterrupt
 
         from slamlab.texture.pipeline import texture_enabled
 
@@ -280,10 +310,15 @@ def run_pipeline(
 
         metrics["total_runtime_s"] = time.perf_counter() - t0
         metrics["total_cpu_time_s"] = time.process_time() - cpu0
-        metrics["peak_memory_mb"] = peak_memory_mb()
-        artifacts.write_json(run_dir / "manifest.json", build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
+        metrics["peak_memory_mb"] = memory.peak_mb()
+        metrics["peak_memory_scope"] = memory.scope
         artifacts.write_json(run_dir / "metrics.json", metrics)
+    except KeyboardInterrupt:
+        memory.peak_mb()  # stops its sampling thread, if any
+        artifacts.remove_partials(run_dir)
+        raise _record_interruption(run_dir, stopper, metrics) from None
     except BaseException as exc:
+        memory.peak_mb()
         artifacts.remove_partials(run_dir)
         _write_failure(run_dir, exc)
         raise
@@ -293,14 +328,33 @@ def run_pipeline(
     return metrics
 
 
+def _record_interruption(run_dir: Path, stopper: StopOnSigint | None, metrics: dict | None) -> RunInterrupted:
+    """metrics.json for a Ctrl-C'd run (status "interrupted"; with the SLAM metrics and
+    "partial": true when the map and trajectory so far were written), and the user's line."""
+    done, total = (stopper.done, stopper.total) if stopper else (0, 0)
+    if metrics is None:  # nothing computed yet (loading, or a second Ctrl-C mid-step)
+        where = f"at scan {done}/{total}" if total else "before the first scan"
+        message = f"interrupted {where}; no results in {run_dir}"
+        info: dict = {"status": "interrupted", "error": message}
+    else:
+        stage = "" if done < total else " after the SLAM loop"
+        message = f"interrupted at scan {done}/{total}{stage}; partial results in {run_dir}"
+        info = {**metrics, "status": "interrupted", "error": message, "partial": True}
+    info.update(interrupted_at_scan=done, scans_total=total)
+    try:
+        artifacts.write_json(run_dir / "metrics.json", info)
+    except OSError:
+        pass
+    return RunInterrupted(message)
+
+
 def _write_failure(run_dir: Path, exc: BaseException) -> None:
     """metrics.json with the error, so sweep reports show the failed run."""
     if (run_dir / "metrics.json").exists():
         return
     err = user_error(exc)
-    status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
-    info = {"status": status, "error": str(err or exc) or type(exc).__name__}
-    if err is None and not isinstance(exc, KeyboardInterrupt):
+    info = {"status": "failed", "error": str(err or exc) or type(exc).__name__}
+    if err is None:
         info["traceback"] = "".join(traceback.format_exception(exc))
     try:
         artifacts.write_json(run_dir / "metrics.json", info)

@@ -186,12 +186,14 @@ def test_no_plateau_keeps_every_positive_reading(tmp_path):
 
 
 def test_nan_readings_become_invalid_with_one_warning(tmp_path):
-    log = "\n".join([flaser([1.0, "nan", 3.0], t=1.0), flaser(["inf", 2.0, "NaN"], t=2.0)])
-    with pytest.warns(RuntimeWarning, match=r"3 NaN/inf range readings") as rec:
+    log = "\n".join([flaser([1.0, "nan", 3.0], t=1.0), flaser(["inf", 2.0, "NaN"], t=2.0),
+                     flaser([-1.5, 2.0, "-inf"], t=3.0)])
+    with pytest.warns(RuntimeWarning, match=r"nan\.clf: 5 negative, NaN or inf range readings dropped as invalid beams") as rec:
         seq = load_carmen(write(tmp_path / "nan.clf", log))
-    assert len([w for w in rec if "NaN/inf" in str(w.message)]) == 1
+    assert len([w for w in rec if "range readings" in str(w.message)]) == 1
     assert seq.scans[0].valid.tolist() == [True, False, True]
     assert seq.scans[1].valid.tolist() == [False, True, False]
+    assert seq.scans[2].valid.tolist() == [False, True, False]
 
 
 def test_frontlaser_offset_param_sets_the_mount(tmp_path):
@@ -227,7 +229,7 @@ def test_robotlaser1_log(tmp_path):
         lines.append(robotlaser1([1.0, 25.0, 2.0, 19.99, "nan"], [100, 200, 300, 400, 500],
                                  laser, (x, y, th), t=50.0 + k, max_range=20.0))  # fmt: skip
         lines.append(f"ODOM {x} {y} {th} 0 0 0 {50.0 + k} nohost 0")
-    with pytest.warns(RuntimeWarning, match="2 NaN/inf"):
+    with pytest.warns(RuntimeWarning, match="2 negative, NaN or inf range readings"):
         seq = load_carmen(write(tmp_path / "rl.clf", "\n".join(lines)))
     assert len(seq) == 2
     s = seq.scans[1]
@@ -335,8 +337,14 @@ def test_empty_log(tmp_path):
 def test_bad_laser_lines_name_file_line_field(tmp_path, bad_line, expected):
     good = [flaser([1.0, 2.0, 3.0], t=float(k)) for k in range(4)]
     lines = good[:3] + [bad_line] + good[3:]
-    with pytest.raises(DataError, match=r"broken\.clf: " + expected):
+    laser_line = not bad_line.startswith("PARAM")  # only laser lines may be skipped
+    hint = ".*dataset.on_bad_line=skip drops bad lines" if laser_line else ""
+    with pytest.raises(DataError, match=r"broken\.clf: " + expected + hint):
         load_carmen(write(tmp_path / "broken.clf", "\n".join(lines)))
+    if laser_line:  # skip mode: the laser line is dropped, the rest read
+        with pytest.warns(RuntimeWarning, match=r"broken\.clf: skipped 1 bad line\(s\): 4; first: .*" + expected):
+            seq = load_carmen(tmp_path / "broken.clf", on_bad_line="skip")
+        assert [s.t for s in seq.scans] == [0.0, 1.0, 2.0, 3.0]
 
 
 @pytest.mark.parametrize(
@@ -376,7 +384,8 @@ def test_crlf_tabs_and_extra_spaces_read_like_the_clean_log(tmp_path):
 def test_relations_of_another_log_are_rejected_at_load(tmp_path):
     write(tmp_path / "small.clf", SMALL_LOG)
     write(tmp_path / "wrong.relations", "1.0 1.2 0.5 0.2 0 0 0 0.1\n1.2 7.5 0.5 0.2 0 0 0 0.1")
-    with pytest.raises(DataError, match=r"wrong\.relations: line 2, field 't2': 7\.500000 is not the time of any scan"):
+    with pytest.raises(DataError, match=r"wrong\.relations: line 2, field 't2': stamp 7\.500000 has no scan in small\.clf "
+                       r"within 0\.0001 s \(nearest scan time 1\.200000, 6\.300000 s away; 1 stamps affected; wrong relations file\?\)"):
         load_carmen(tmp_path / "small.clf", relations=tmp_path / "wrong.relations")
 
 

@@ -13,6 +13,7 @@ import pandas as pd
 import pytest
 from hydra import compose, initialize_config_module
 
+from cli_helpers import slamlab_cli
 from slamlab import artifacts
 from slamlab.errors import ConfigError
 from slamlab.pipeline import RunDirectoryInUse, run_pipeline
@@ -133,9 +134,7 @@ def test_interrupted_run_leaves_no_half_written_files(sim_cache, tmp_path):
 
 
 def _cli(args: list[str], cwd: Path, cache: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "SLAMLAB_CACHE_DIR": str(cache), "MPLBACKEND": "Agg"}
-    return subprocess.run([sys.executable, "-m", "slamlab.cli.app", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=600)
+    return slamlab_cli(args, cwd, cache, timeout=600)
 
 
 def test_cli_bad_input_is_one_clear_line(tmp_path, sim_cache):

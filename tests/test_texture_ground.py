@@ -18,7 +18,14 @@ from slamlab.errors import ConfigError
 from slamlab.eval.texture import DetectionCounts
 from slamlab.robot import COM_HEIGHT_M, camera_to_body
 from slamlab.texture.backproject import Backprojector
-from slamlab.texture.ground import GroundQuery, ImagePlaneGround, PlaneGround, ThresholdGround, image_plane_coefficients
+from slamlab.texture.ground import (
+    GroundQuery,
+    ImagePlaneGround,
+    PlaneGround,
+    ThresholdGround,
+    image_plane_coefficients,
+    ransac_plane,
+)
 from slamlab.texture.pipeline import body_to_world, build_detector
 from slamlab.texture.synthetic import checker_texture, render_frame, scaled_calibration
 
@@ -87,11 +94,35 @@ def test_plane_rejects_a_wall_only_view():
     assert det.last_plane is None
 
 
-def test_plane_is_reproducible(frames):
-    query, _ = frames[1]
-    masks = [PlaneGround(seed=3)(query) for _ in range(4)]
-    for m in masks[1:]:
-        assert np.mean(m == masks[0]) > 0.999
+def test_plane_is_bit_reproducible_for_a_seed(frames):
+    """Same seed, same frames in the same order: the same floor, bit for bit (a grading
+    re-run compares the detection scores exactly)."""
+    def run(seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        det = PlaneGround(seed=seed)
+        return [(det(q), det.last_plane.copy()) for q, _ in frames]
+
+    first = run(3)
+    for _ in range(3):
+        again = run(3)
+        for (m0, p0), (m1, p1) in zip(first, again):
+            assert np.array_equal(m0, m1) and np.array_equal(p0, p1)
+    other = run(4)  # another seed draws other triples: planes agree closely, not bitwise
+    assert any(not np.array_equal(p0, p1) for (_, p0), (_, p1) in zip(first, other))
+    for (_, p0), (_, p1) in zip(first, other):  # the same plane, up to the normal's sign
+        np.testing.assert_allclose(p0 * np.sign(p0[2]), p1 * np.sign(p1[2]), atol=5e-3)
+
+
+def test_ransac_plane_finds_the_plane_among_outliers():
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-2, 2, size=(600, 2))
+    on = np.column_stack([xy, 0.1 * xy[:, 0] - 0.2 * xy[:, 1] + 0.5 + rng.normal(0, 0.002, 600)])
+    off = rng.uniform(-2, 2, size=(400, 3))
+    plane, support = ransac_plane(np.vstack([on, off]), np.random.default_rng(1), 0.01, 100)
+    truth = np.array([0.1, -0.2, -1.0, 0.5]) / np.linalg.norm([0.1, -0.2, -1.0])
+    np.testing.assert_allclose(plane * np.sign(plane[2]), truth * np.sign(truth[2]), atol=5e-3)
+    assert 590 <= support <= 620  # the plane's points, and the few outliers that happen to lie on it
+    line = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])  # collinear: no plane
+    assert ransac_plane(line, np.random.default_rng(0), 0.01, 20)[1] == 0
 
 
 def test_bad_detector_config_is_a_config_error():

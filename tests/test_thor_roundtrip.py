@@ -148,14 +148,16 @@ def test_nan_ranges_are_invalid_with_one_warning(tmp_path: Path) -> None:
     scans = np.full((4, 1081), 5.0, np.float32)
     scans[1, :3] = np.nan
     scans[2, 100] = np.inf
+    scans[3, 7] = -2.0
     write_lidar_mat(tmp_path / "train_lidar0.mat", t, np.zeros((4, 3)), np.zeros((4, 3)), scans)
     write_joint_mat(tmp_path / "train_joint0.mat", t, np.zeros((2, 4)), np.zeros((3, 4)))
-    with pytest.warns(UserWarning, match=r"4 NaN/inf ranges in 2 scans") as rec:
+    with pytest.warns(UserWarning, match=r"5 negative, NaN or inf ranges in 3 scans dropped as invalid beams") as rec:
         seq = load_thor(tmp_path)
     assert len(rec) == 1
     assert not seq.scans[1].valid[:3].any() and seq.scans[1].valid[3:].all()
     assert np.all(np.isfinite(seq.scans[1].ranges)) and seq.scans[1].ranges[0] == 0.0
     assert not seq.scans[2].valid[100]
+    assert not seq.scans[3].valid[7] and seq.scans[3].ranges[7] == 0.0
 
 
 # ------------------------------------------------------------------------------- RGB-D

@@ -2,6 +2,7 @@
 
 User mistakes (bad files, impossible config values) print one clear line and exit with
 status 2; in a sweep, a failed job is recorded in its run folder and the sweep goes on.
+Ctrl-C prints one line (`interrupted at scan K/N; partial results in DIR`) and exits 130.
 """
 
 from __future__ import annotations
@@ -15,8 +16,17 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
+from slamlab.cli.overrides import check_overrides
 from slamlab.errors import SlamlabError
-from slamlab.pipeline import RUN_MARKERS, run_pipeline, user_error
+from slamlab.interrupt import EXIT_INTERRUPTED, RunInterrupted
+from slamlab.pipeline import (
+    CLAIM_FILE,
+    RunDirectoryInUse,
+    claim_run_dir,
+    claimed_by_this_process,
+    run_pipeline,
+    user_error,
+)
 
 log = logging.getLogger("slamlab")
 
@@ -45,6 +55,9 @@ def _hydra_main(cfg: DictConfig) -> None:
     try:
         run_pipeline(cfg, run_dir, overrides=list(hc.overrides.task), progress=cfg.get("progress", "auto"))
         log.info("outputs in %s%s", run_dir, " (open report.html)" if cfg.get("report", True) else "")
+    except RunInterrupted as exc:
+        print(exc, file=sys.stderr)
+        sys.exit(EXIT_INTERRUPTED)
     except Exception as exc:
         err = user_error(exc)
         if err is None and not multirun:
@@ -55,27 +68,71 @@ def _hydra_main(cfg: DictConfig) -> None:
             sys.exit(2)
 
 
-def _refuse_reused_run_dir(argv: list[str]) -> None:
-    """Hydra writes .hydra/ into the run dir before the app starts: stop first if a user
-    points `hydra.run.dir` at a folder that already holds a run."""
-    for arg in argv:
-        if arg.startswith("hydra.run.dir="):
-            d = Path(arg.split("=", 1)[1])
-            taken = [m for m in RUN_MARKERS if (d / m).exists()]
-            if taken:
-                print(f"slamlab: {d} already holds a run ({', '.join(taken)}); "
-                      "slamlab never overwrites a run. Choose another hydra.run.dir.", file=sys.stderr)
-                sys.exit(2)
+def _claim_given_run_dir(argv: list[str]) -> tuple[Path, bool] | None:
+    """Claim the folder of `hydra.run.dir=DIR` before Hydra starts: Hydra writes `.hydra/`
+    into it before the app runs, so a run refused later would already have overwritten the
+    other run's saved config. Returns (the folder, whether it was created here), or exits 2
+    if another run holds it."""
+    if "-m" in argv or "--multirun" in argv:
+        return None  # sweeps write into hydra.sweep.dir; every job claims its own folder
+    dirs = [arg.split("=", 1)[1] for arg in argv if arg.startswith("hydra.run.dir=")]
+    if not dirs or "${" in dirs[-1]:
+        return None  # the default folder has microseconds in its name; interpolations resolve later
+    run_dir = Path(dirs[-1])
+    created = not run_dir.exists()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        claim_run_dir(run_dir)
+    except RunDirectoryInUse as exc:
+        print(f"slamlab: {exc}", file=sys.stderr)
+        sys.exit(2)
+    return run_dir, created
+
+
+def _release_unused_claim(claimed: tuple[Path, bool] | None) -> None:
+    """Hydra stopped before the run started (a config error, --help, --cfg): give the folder back."""
+    if claimed is None:
+        return
+    run_dir, created = claimed
+    if (run_dir / "metrics.json").exists() or not claimed_by_this_process(run_dir):
+        return
+    (run_dir / CLAIM_FILE).unlink(missing_ok=True)
+    if created:
+        try:
+            run_dir.rmdir()  # only if empty
+        except OSError:
+            pass
+
+
+def _exit_if_sweep_runs_failed() -> None:
+    """After a sweep (and its report): a failed job makes the whole command fail, and the
+    last line names the failed jobs and their errors."""
+    from slamlab.report.callback import LAST_SWEEP
+
+    failed = LAST_SWEEP["failed"]
+    if failed:
+        print(f"{len(failed)} of {LAST_SWEEP['runs']} runs failed: {'; '.join(failed)}", file=sys.stderr)
+        sys.exit(1)
 
 
 def main() -> None:
     """Console entry point."""
-    _refuse_reused_run_dir(sys.argv[1:])
+    mistake = check_overrides(sys.argv[1:])
+    if mistake:
+        print(f"slamlab: {mistake}", file=sys.stderr)
+        sys.exit(2)
+    claimed = _claim_given_run_dir(sys.argv[1:])
     try:
         _hydra_main()
+        _exit_if_sweep_runs_failed()
     except SlamlabError as exc:  # raised before Hydra's own reporting (rare)
         print(f"slamlab: {exc}", file=sys.stderr)
         sys.exit(2)
+    except KeyboardInterrupt as exc:  # Ctrl-C outside a run (while Hydra starts or ends)
+        print(exc if isinstance(exc, RunInterrupted) else "interrupted", file=sys.stderr)
+        sys.exit(EXIT_INTERRUPTED)
+    finally:
+        _release_unused_claim(claimed)
 
 
 if __name__ == "__main__":

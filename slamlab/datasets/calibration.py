@@ -15,17 +15,59 @@ RGB_FILE = "RGBcamera_Calib_result.pkl"
 EXTRINSICS_FILE = "exParams.pkl"
 
 
+# What a calibration pickle may build: numpy arrays, dtypes and scalars (as numpy 1 and 2
+# name them) and the bytes codec Python 3 uses for protocol-2 byte strings. Anything else
+# (os.system, builtins.eval, ...) would run code from the file: refused.
+_ALLOWED_GLOBALS = frozenset({
+    ("numpy", "ndarray"), ("numpy", "dtype"),
+    ("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
+    ("numpy.core.multiarray", "scalar"), ("numpy._core.multiarray", "scalar"),
+    ("numpy.core.numeric", "_frombuffer"), ("numpy._core.numeric", "_frombuffer"),
+    ("_codecs", "encode"),
+})
+
+
+class _CalibrationUnpickler(pickle.Unpickler):
+    """Unpickles numbers, strings, lists, tuples, dicts and numpy arrays, nothing else."""
+
+    def find_class(self, module: str, name: str) -> object:
+        if (module, name) not in _ALLOWED_GLOBALS:
+            raise _ForbiddenObject(f"{module}.{name}")
+        return super().find_class(module, name)
+
+
+class _ForbiddenObject(pickle.UnpicklingError):
+    """A pickle names a class or function outside the allowed set."""
+
+
+def _plain_data(obj: object) -> bool:
+    """Only numbers, strings, arrays of numbers, and dicts / lists / tuples of those."""
+    if isinstance(obj, dict):
+        return all(isinstance(k, str) and _plain_data(v) for k, v in obj.items())
+    if isinstance(obj, (list, tuple)):
+        return all(_plain_data(v) for v in obj)
+    if isinstance(obj, np.ndarray):
+        return obj.dtype.kind in "biufc"
+    return obj is None or isinstance(obj, (bool, int, float, complex, str, bytes, np.number, np.bool_))
+
+
 def _load_pickle(path: Path) -> dict:
+    """A calibration pickle, read with an unpickler that cannot run code from the file."""
     if not path.is_file():
         raise DataError(path, "calibration file is missing")
     try:
         with path.open("rb") as f:
             # exParams.pkl is a Python 2 pickle of numpy arrays: latin1 reads it.
-            obj = pickle.load(f, encoding="latin1")
+            obj = _CalibrationUnpickler(f, encoding="latin1").load()
+    except _ForbiddenObject as exc:
+        raise DataError(path, f"holds a Python object '{exc}', not only numbers, arrays, dicts and lists; "
+                        "not loaded (a pickle can run code when loaded)") from None  # fmt: skip
     except Exception as exc:  # truncated or not a pickle
         raise DataError(path, f"cannot read calibration pickle ({exc.__class__.__name__}: {exc})") from None
     if not isinstance(obj, dict):
         raise DataError(path, f"expected a dict, got {type(obj).__name__}")
+    if not _plain_data(obj):
+        raise DataError(path, "holds values other than numbers, arrays, dicts and lists; not loaded")
     return obj
 
 

@@ -44,8 +44,9 @@ from pathlib import Path
 
 import numpy as np
 
+from slamlab.datasets.bad_lines import BadLines
 from slamlab.errors import DataError
-from slamlab.eval.relations import find_times
+from slamlab.eval.relations import DEFAULT_RELATIONS_TOL_S, snap_relations
 from slamlab.frames import Relations, ScanFrame, Sequence
 from slamlab.geometry import rot_z, se2_between, trans, wrap_angle
 
@@ -255,8 +256,9 @@ def _check_length(path: Path, parts: list[str], need: int, record: str, names, c
                     record=record, field=names(need - 1))  # fmt: skip
 
 
-def _scan_lines(path: Path, lines: list[str]) -> tuple[dict[tuple, _Group], dict[str, _Param]]:
-    """One pass over the log: group laser records by shape, collect PARAMs."""
+def _scan_lines(path: Path, lines: list[str], bad: BadLines) -> tuple[dict[tuple, _Group], dict[str, _Param]]:
+    """One pass over the log: group laser records by shape, collect PARAMs; unreadable
+    laser lines go to `bad` (raised, or dropped and counted)."""
     groups: dict[tuple, _Group] = {}
     params: dict[str, _Param] = {}
     for lineno, line in enumerate(lines, 1):
@@ -277,10 +279,14 @@ def _scan_lines(path: Path, lines: list[str]) -> tuple[dict[tuple, _Group], dict
             if parts[0] != "ROBOTLASER1":
                 continue
             record = f"line {lineno} (ROBOTLASER1)"
-            n = _count(path, parts, 8, "num_readings", record)
-            m = _count(path, parts, 9 + n, "num_remissions", record)
-            _check_length(path, parts, n + m + 24, record, lambda j: _rl1_field(n, m, j),
-                          f"num_readings={n}, num_remissions={m}")  # fmt: skip
+            try:
+                n = _count(path, parts, 8, "num_readings", record)
+                m = _count(path, parts, 9 + n, "num_remissions", record)
+                _check_length(path, parts, n + m + 24, record, lambda j: _rl1_field(n, m, j),
+                              f"num_readings={n}, num_remissions={m}")  # fmt: skip
+            except DataError as exc:
+                bad.add(lineno, exc)
+                continue
             g = groups.get(("ROBOTLASER1", n, m))
             if g is None:
                 g = groups[("ROBOTLASER1", n, m)] = _Group("ROBOTLASER1", (n, m))
@@ -293,46 +299,76 @@ def _scan_lines(path: Path, lines: list[str]) -> tuple[dict[tuple, _Group], dict
                 params[parts[1]] = _Param(parts[2], lineno)
     for g in groups.values():
         if g.kind == "FLASER":
-            _convert_flaser(path, lines, g)
-    return {(g.kind, *g.shape, i): g for i, g in enumerate(groups.values())}, params
+            _convert_flaser(path, lines, g, bad)
+    kept = [g for g in groups.values() if g.linenos]  # every line of a group may have been bad
+    return {(g.kind, *g.shape, i): g for i, g in enumerate(kept)}, params
 
 
-def _convert_flaser(path: Path, lines: list[str], g: _Group) -> None:
+def _convert_flaser(path: Path, lines: list[str], g: _Group, bad: BadLines) -> None:
     """Check the shape of a group of FLASER lines sharing one num_readings token and
-    convert them in one C-level pass (np.loadtxt); name the bad field on failure."""
-    first = g.linenos[0]
-    n = _count(path, g.raw[0].split(), 1, "num_readings", f"line {first} (FLASER)")
+    convert them in one C-level pass (np.loadtxt); bad lines go to `bad`."""
+    try:
+        n = _count(path, g.raw[0].split(), 1, "num_readings", f"line {g.linenos[0]} (FLASER)")
+    except DataError as exc:  # the group's shared num_readings token: every line of it is bad
+        for lineno in g.linenos:
+            bad.add(lineno, DataError(path, exc.message, record=f"line {lineno} (FLASER)", field="num_readings"))
+        g.linenos, g.raw = [], []
+        return
     g.shape = (n,)
     # Token count by counting single spaces (C speed); split only lines spaced unusually.
     spaces = n + 10
-    for lineno, line in zip(g.linenos, g.raw):
+    keep = []
+    for i, (lineno, line) in enumerate(zip(g.linenos, g.raw)):
         if line.count(" ") != spaces or "  " in line or "\t" in line:
-            _check_length(path, line.split(), n + 11, f"line {lineno} (FLASER)",
-                          lambda j: _flaser_field(n, j), f"num_readings={n}")  # fmt: skip
+            try:
+                _check_length(path, line.split(), n + 11, f"line {lineno} (FLASER)",
+                              lambda j: _flaser_field(n, j), f"num_readings={n}")  # fmt: skip
+            except DataError as exc:
+                bad.add(lineno, exc)
+                continue
+        keep.append(i)
+    _keep_rows(g, keep)
     # ranges, six pose values, ipc_timestamp; skip the host name; logger_timestamp.
     cols = [*range(2, n + 9), n + 10]
-    try:
-        g.values = np.loadtxt(g.raw, dtype=np.float64, usecols=cols, comments=None, ndmin=2)
-    except ValueError as exc:
-        _locate_bad_number(path, lines, g, str(exc))
+    while g.linenos:
+        try:
+            g.values = np.loadtxt(g.raw, dtype=np.float64, usecols=cols, comments=None, ndmin=2)
+            break
+        except ValueError as exc:
+            _drop_bad_numbers(path, lines, g, str(exc), bad)
     g.raw = []
 
 
-def _to_numbers(path: Path, lines: list[str], g: _Group) -> np.ndarray:
-    """The group's values as an (L, width) float64 array; on failure find the bad field."""
+def _keep_rows(g: _Group, keep: list[int]) -> None:
+    """Keep only rows `keep` (indices into the group's lines) of an unconverted group."""
+    if len(keep) == len(g.linenos):
+        return
+    if g.raw:
+        g.raw = [g.raw[i] for i in keep]
+    if g.tokens:
+        width = len(g.tokens) // len(g.linenos)
+        g.tokens = [tok for i in keep for tok in g.tokens[i * width : (i + 1) * width]]
+    g.linenos = [g.linenos[i] for i in keep]
+
+
+def _to_numbers(path: Path, lines: list[str], g: _Group, bad: BadLines) -> np.ndarray:
+    """The group's values as an (L, width) float64 array; lines that are not numbers go to `bad`."""
     if g.values is not None:
         return g.values
-    width = len(g.tokens) // len(g.linenos)
-    try:
-        return np.array(g.tokens, dtype=np.float64).reshape(len(g.linenos), width)
-    except ValueError as exc:
-        _locate_bad_number(path, lines, g, str(exc))
-    raise AssertionError("unreachable")  # pragma: no cover
+    while g.linenos:
+        width = len(g.tokens) // len(g.linenos)
+        try:
+            return np.array(g.tokens, dtype=np.float64).reshape(len(g.linenos), width)
+        except ValueError as exc:
+            _drop_bad_numbers(path, lines, g, str(exc), bad)
+    return np.zeros((0, 0))
 
 
-def _locate_bad_number(path: Path, lines: list[str], g: _Group, numpy_message: str) -> None:
-    """Slow path, only for a broken file: re-split the group's lines to name the field."""
-    for lineno in g.linenos:
+def _drop_bad_numbers(path: Path, lines: list[str], g: _Group, numpy_message: str, bad: BadLines) -> None:
+    """Slow path, only for a broken file: re-split the group's lines to name the bad field
+    of each bad line, hand them to `bad` and keep the rest."""
+    keep = []
+    for i, lineno in enumerate(g.linenos):
         parts = lines[lineno - 1].split()
         if g.kind == "FLASER":
             n = g.shape[0]
@@ -342,24 +378,37 @@ def _locate_bad_number(path: Path, lines: list[str], g: _Group, numpy_message: s
             n, m = g.shape
             idx = [*range(1, n + m + 22), n + m + 23]
             names = lambda j: _rl1_field(n, m, j)  # noqa: E731
-        for j in idx:
-            try:
-                float(parts[j])
-            except ValueError:
-                raise DataError(path, f"expected a number, got {parts[j]!r}",
-                                record=f"line {lineno} ({g.kind})", field=names(j)) from None  # fmt: skip
+        wrong = next((j for j in idx if not _is_number(parts[j])), None)
+        if wrong is None:
+            keep.append(i)
+        else:
+            bad.add(lineno, DataError(path, f"expected a number, got {parts[wrong]!r}",
+                                      record=f"line {lineno} ({g.kind})", field=names(wrong)))  # fmt: skip
+    if len(keep) < len(g.linenos):
+        _keep_rows(g, keep)
+        return
     # numpy and float() disagree on some spelling: still say which file and group.
     raise DataError(path, f"cannot read the numbers: {numpy_message}",
                     record=f"lines {g.linenos[0]}-{g.linenos[-1]} ({g.kind})")  # fmt: skip
 
 
-def _require_finite(path: Path, g: _Group, values: np.ndarray, names: list[str]) -> None:
-    """Poses and timestamps must be finite (ranges may be NaN: those beams become invalid)."""
-    bad = ~np.isfinite(values)
-    if bad.any():
-        row, col = np.argwhere(bad)[0]
-        raise DataError(path, f"expected a finite number, got {values[row, col]}",
-                        record=f"line {g.linenos[row]} ({g.kind})", field=names[col])  # fmt: skip
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+        return True
+    except ValueError:
+        return False
+
+
+def _finite_rows(path: Path, g: _Group, values: np.ndarray, names: list[str], bad: BadLines) -> np.ndarray:
+    """Rows whose poses and timestamps are finite (ranges may be NaN: those beams become
+    invalid); the other rows go to `bad`."""
+    wrong = ~np.isfinite(values)
+    cells = np.argwhere(wrong)  # row-major: the first cell of each row is its first bad field
+    for row, col in cells[np.unique(cells[:, 0], return_index=True)[1]]:
+        bad.add(g.linenos[row], DataError(path, f"expected a finite number, got {values[row, col]}",
+                                          record=f"line {g.linenos[row]} ({g.kind})", field=names[col]))  # fmt: skip
+    return ~wrong.any(axis=1)
 
 
 def _param_float(path: Path, params: dict[str, _Param], name: str) -> float | None:
@@ -436,6 +485,8 @@ def load_carmen(
     relations: str | Path | None = None,
     max_range_m: float | None = None,
     name: str | None = None,
+    relations_time_tol_s: float = DEFAULT_RELATIONS_TOL_S,
+    on_bad_line: str = "error",
 ) -> Sequence:
     """Load a CARMEN log (`.clf`, `.clf.gz`, `.clf.bz2`, `.clf.xz`) as a `Sequence`.
 
@@ -443,13 +494,15 @@ def load_carmen(
     e.g. `intel.clf.bz2` -> `intel.relations`, if it exists). max_range_m: readings at or
     above this (m) mean "no return" (default: the record's max_range, a PARAM, or the
     detected saturation value; see the module docstring). name: the sequence name
-    (default: the file stem, `intel`).
+    (default: the file stem, `intel`). relations_time_tol_s: each relation stamp is matched
+    to the scan nearest in time within this (s; published files may round stamps).
+    on_bad_line: `error` stops at an unreadable laser line, `skip` drops it (one warning).
 
     Scans come in file order with `t` = ipc_timestamp (s), `odom` = robot pose
     (m, m, rad), float32 ranges (m) and angles (rad); roll/pitch are 0. Arrays in the
     frames are read-only views into per-log blocks. `Sequence.max_range_m` is the sensor's
-    no-return range. NaN/inf readings become invalid beams and raise one warning with
-    their count. Raises DataError (file, line, field) for unreadable input.
+    no-return range. Negative, NaN and inf readings become invalid beams and raise one
+    warning with their count. Raises DataError (file, line, field) for unreadable input.
     """
     if max_range_m is not None and not (np.isfinite(max_range_m) and max_range_m > 0):
         raise ValueError(f"max_range_m must be a positive number of metres, got {max_range_m}")
@@ -459,9 +512,14 @@ def load_carmen(
     lines = text.split("\n")
     if "\r" in text:
         lines = [line.rstrip("\r") for line in lines]
-    if lines and lines[-1] == "":
+    ends_cleanly = not lines or lines[-1] == ""
+    if ends_cleanly and lines:
         lines.pop()
-    groups, params = _scan_lines(path, lines)
+    bad = BadLines(path, len(lines), on_bad_line, truncated=not ends_cleanly)
+    groups, params = _scan_lines(path, lines, bad)
+    for g in groups.values():  # numbers first: in skip mode a group may lose every line here
+        g.values = _to_numbers(path, lines, g, bad)
+    groups = {k: g for k, g in groups.items() if g.linenos}
 
     kinds = {key[0] for key in groups}
     if not groups:
@@ -484,21 +542,27 @@ def load_carmen(
     # Parse every group first: the saturation value is a property of the whole log.
     parsed = []  # (group, ranges f64 (L, n), laser (L, 3), robot (L, 3), t (L,), record max or None, angles)
     for g in groups.values():
-        a = _to_numbers(path, lines, g)
+        a = _to_numbers(path, lines, g, bad)
         if g.kind == "FLASER":
             n = g.shape[0]
+            keep = _finite_rows(path, g, a[:, n:], [f for f in _FLASER_TAIL if f != "ipc_hostname"], bad)
+        else:
+            n, m = g.shape
+            keep = _finite_rows(path, g, a[:, :8], list(_RL1_HEAD), bad) & _finite_rows(
+                path, g, a[:, n + m + 9 :], [f for f in _RL1_TAIL if f != "ipc_hostname"], bad)
+        if not keep.all():  # skip mode: drop the lines with a non-finite pose or time
+            a, g.linenos = a[keep], [ln for ln, k in zip(g.linenos, keep) if k]
+        if not g.linenos:
+            continue
+        if g.kind == "FLASER":
             tail = a[:, n:]  # x y theta odom_x odom_y odom_theta ipc logger
-            _require_finite(path, g, tail, [f for f in _FLASER_TAIL if f != "ipc_hostname"])
             ranges = a[:, :n]
             laser, robot, t = tail[:, 0:3], tail[:, 3:6], tail[:, 6]
             rec_max = None
             angles = _readonly(flaser_beam_angles(n, fov_deg, res_deg))
         else:
-            n, m = g.shape
             head = a[:, :8]
-            _require_finite(path, g, head, list(_RL1_HEAD))
             tail = a[:, n + m + 9 :]
-            _require_finite(path, g, tail, [f for f in _RL1_TAIL if f != "ipc_hostname"])
             ranges = a[:, 8 : 8 + n]
             laser, robot, t = tail[:, 0:3], tail[:, 3:6], tail[:, 11]
             rec_max = np.where(head[:, 4] > 0, head[:, 4], np.nan)
@@ -506,12 +570,17 @@ def load_carmen(
             # One shared angle array when every record has the same geometry (the usual case).
             angles = _readonly(ang[0].astype(np.float32)) if np.all(ang == ang[:1]) else _readonly(ang.astype(np.float32))
         parsed.append((g, ranges, laser, robot, t, rec_max, angles))
+    bad.warn()
+    if not parsed:
+        raise DataError(path, "no readable laser scans: every FLASER / ROBOTLASER1 line was bad",
+                        record=f"{len(bad.skipped)} lines skipped")  # fmt: skip
 
     all_ranges = np.concatenate([p[1].reshape(-1) for p in parsed])
     fallback_max = max_range_m if max_range_m is not None else param_max
     if fallback_max is None:
         fallback_max = _detect_no_return(all_ranges)
-    nonfinite = int(np.count_nonzero(~np.isfinite(all_ranges)))
+    with np.errstate(invalid="ignore"):
+        impossible = int(np.count_nonzero(~np.isfinite(all_ranges) | (all_ranges < 0)))
 
     linenos = np.concatenate([np.asarray(p[0].linenos) for p in parsed])
     order = np.argsort(linenos, kind="stable")
@@ -554,9 +623,9 @@ def load_carmen(
             )
         base += L
 
-    if nonfinite:
-        warnings.warn(f"{path}: {nonfinite} NaN/inf range readings marked as invalid beams", RuntimeWarning,
-                      stacklevel=2)  # fmt: skip
+    if impossible:
+        warnings.warn(f"{path}: {impossible} negative, NaN or inf range readings dropped as invalid beams",
+                      RuntimeWarning, stacklevel=2)  # fmt: skip
 
     rel_path: Path | None
     if relations is not None:
@@ -568,15 +637,9 @@ def load_carmen(
     if rel_path is not None:
         rel, rel_lines = _read_relations(rel_path)
         # A relations file of another log would only fail at evaluation, after a long run:
-        # check now that every relation time is a scan time.
+        # match every stamp to its scan now, and use the scan's own time from here on.
         times = np.array([s.t for s in scans])  # type: ignore[union-attr]
-        for name_t, query in (("t1", rel.t1), ("t2", rel.t2)):
-            _, found = find_times(times, query)
-            if not found.all():
-                k = int(np.argmin(found))
-                raise DataError(rel_path, f"{query[k]:.6f} is not the time of any scan in {path.name} "
-                                f"({int(np.count_nonzero(~found))} relations affected; wrong relations file?)",
-                                record=f"line {rel_lines[k]}", field=name_t)  # fmt: skip
+        rel = snap_relations(rel, rel_lines, times, relations_time_tol_s, log_name=path.name)
 
     sources = [str(path)] + ([str(rel_path)] if rel_path is not None else [])
     seq = Sequence(

@@ -335,14 +335,16 @@ def load_thor(
     if far:
         warnings.warn(f"{joint_path}: {far} of {len(lidar)} scans have no joint sample within {MAX_JOINT_GAP_S} s; using the nearest", stacklevel=2)
 
-    # Ranges: NaN/inf -> 0 and invalid, one warning for the whole file.
+    # Ranges: negative, NaN or inf -> 0 and invalid, one warning for the whole file.
     scans = lidar.scans
-    finite = np.isfinite(scans)
-    n_bad = int(finite.size - np.count_nonzero(finite))
+    with np.errstate(invalid="ignore"):
+        possible = np.isfinite(scans) & (scans >= 0)
+    n_bad = int(possible.size - np.count_nonzero(possible))
     if n_bad:
-        warnings.warn(f"{lidar_path}: {n_bad} NaN/inf ranges in {int(np.count_nonzero(~finite.all(axis=1)))} scans marked invalid", stacklevel=2)
-        scans = np.where(finite, scans, np.float32(0.0))
-    valid = finite & (scans >= MIN_RANGE_M) & (scans < MAX_RANGE_M)
+        warnings.warn(f"{lidar_path}: {n_bad} negative, NaN or inf ranges in "
+                      f"{int(np.count_nonzero(~possible.all(axis=1)))} scans dropped as invalid beams", stacklevel=2)
+        scans = np.where(possible, scans, np.float32(0.0))
+    valid = possible & (scans >= MIN_RANGE_M) & (scans < MAX_RANGE_M)
 
     if lidar.rpy is not None:
         roll, pitch = lidar.rpy[:, 0], lidar.rpy[:, 1]

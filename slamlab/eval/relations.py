@@ -18,12 +18,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from slamlab.errors import ConfigError, DataError
 from slamlab.frames import Relations
 from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, wrap_angle
 
 # Relation files and CARMEN logs both print times with 6 decimals, so matching times are
 # equal once parsed; the tolerance only absorbs conversions through other tools.
 DEFAULT_TIME_TOL_S = 1e-6
+# Matching a relations file to a log (`dataset.relations_time_tol_s`): some published files
+# round their stamps to 10 us, so a stamp is matched to the nearest scan within this (s).
+DEFAULT_RELATIONS_TOL_S = 1e-4
 
 
 def find_times(
@@ -53,6 +57,40 @@ def find_times(
     tol = np.maximum(tol_s, 8.0 * np.spacing(np.abs(query)))
     ok = np.abs(sorted_t[best] - query) <= tol
     return np.where(ok, order[best], -1), ok
+
+
+def snap_relations(
+    relations: Relations, linenos: list[int], times: np.ndarray, tol_s: float, log_name: str = "the log"
+) -> Relations:
+    """The relations with each stamp replaced by the time of the scan nearest to it (`times`,
+    s, file order), so that later lookups are exact.
+
+    Raises DataError naming the relations file, the line, the stamp and the nearest scan
+    time when a stamp has no scan within `tol_s` s (another log's relations?) or lies within
+    `tol_s` of two scans of different times (ambiguous: lower the tolerance).
+    """
+    if not (np.isfinite(tol_s) and tol_s >= 0):
+        raise ConfigError("dataset.relations_time_tol_s", f"must be a number of seconds >= 0, got {tol_s}")
+    distinct = np.unique(np.asarray(times, dtype=np.float64))  # sorted; repeated scan times count once
+    snapped = {}
+    for name, query in (("t1", relations.t1), ("t2", relations.t2)):
+        pos = np.clip(np.searchsorted(distinct, query), 1, max(distinct.size - 1, 1))
+        lo, hi = distinct[pos - 1], distinct[np.minimum(pos, distinct.size - 1)]
+        nearest = np.where(np.abs(hi - query) < np.abs(lo - query), hi, lo)
+        other = np.where(nearest == hi, lo, hi)  # the next nearest distinct time
+        far = np.abs(nearest - query) > tol_s
+        ambiguous = ~far & (other != nearest) & (np.abs(other - query) <= tol_s)
+        for k in np.flatnonzero(far | ambiguous)[:1]:
+            where = dict(record=f"line {linenos[k]}", field=name)
+            if far[k]:
+                raise DataError(relations.path, f"stamp {query[k]:.6f} has no scan in {log_name} within "
+                                f"{tol_s:g} s (nearest scan time {nearest[k]:.6f}, {abs(nearest[k] - query[k]):.6f} s "
+                                f"away; {int(np.count_nonzero(far))} stamps affected; wrong relations file?)", **where)
+            raise DataError(relations.path, f"stamp {query[k]:.6f} is within {tol_s:g} s of two scans of "
+                            f"{log_name} ({nearest[k]:.6f} and {other[k]:.6f}): ambiguous; lower "
+                            "dataset.relations_time_tol_s", **where)  # fmt: skip
+        snapped[name] = nearest
+    return Relations(snapped["t1"], snapped["t2"], relations.rel, relations.path)
 
 
 def match_times(times: np.ndarray, query: np.ndarray, tol_s: float = DEFAULT_TIME_TOL_S) -> np.ndarray:

@@ -23,6 +23,26 @@ from omegaconf import DictConfig
 
 log = logging.getLogger(__name__)
 
+# Failed runs of the last sweep this process ran, one line each (`job 1 (particles=0): error`):
+# the CLI reads it after Hydra returns, to end with "1 of 2 runs failed: ..." and exit non-zero.
+LAST_SWEEP: dict[str, Any] = {"runs": 0, "failed": []}
+
+
+def failed_runs(sweep_dir: Path) -> tuple[int, list[str]]:
+    """(number of runs, one line per run that did not finish with status ok) in a sweep folder."""
+    from slamlab.report.rundir import find_run_dirs, load_run
+
+    runs = [load_run(p) for p in find_run_dirs([sweep_dir])]
+    # name a job by what it changed from the others (the swept values), not by the shared overrides
+    shared = set.intersection(*(set(r.overrides) for r in runs)) if runs else set()
+    lines = []
+    for r in runs:
+        if not r.ok:
+            own = " ".join(o for o in r.overrides if o not in shared)
+            first = (r.error or r.status).strip().splitlines()[0]
+            lines.append(f"job {r.name}{f' ({own})' if own else ''}: {first}")
+    return len(runs), lines
+
 
 class SweepReportCallback(Callback):
     """Build `<sweep dir>/report.html` (and `runs.csv`) when a multirun ends.
@@ -68,10 +88,16 @@ class SweepReportCallback(Callback):
         return None
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        LAST_SWEEP.update(runs=0, failed=[])
+        sweep_dir = self._locate(config)
+        if sweep_dir is not None:
+            try:
+                LAST_SWEEP["runs"], LAST_SWEEP["failed"] = failed_runs(sweep_dir)
+            except Exception as exc:  # noqa: BLE001 - counting must not hide the report
+                log.error("could not count the sweep's failed runs: %s", exc)
         try:
             if not self.enabled or config.get("report", True) is False:
                 return
-            sweep_dir = self._locate(config)
             if sweep_dir is None:
                 log.error("sweep report not written: sweep directory not found (hydra.sweep.dir=%s)",
                           self._sweep_dir(config))

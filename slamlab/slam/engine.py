@@ -181,7 +181,8 @@ def run_slam(
     """Run the filter (or dead reckoning, `mode: odometry`) over `sequence`.
 
     `progress(scans_done, scans_total)` is called after every processed step (scans between
-    steps count as done: the progress bar shows scans, the log's unit).
+    steps count as done: the progress bar shows scans, the log's unit); when it returns
+    True the run stops there and returns the scans up to that step (Ctrl-C keeps a partial run).
     Returns one pose per scan (the first `steps.max_scans` scans when set; with
     `steps.max_steps`, the scans up to the last processed step)."""
     c = validate_config(cfg)
@@ -258,8 +259,15 @@ def run_slam(
         rows["resampled"].append(resampled)
         rows["best_weight"].append(float(w[best]))
         rows["step_time_s"].append(time.perf_counter() - t0)
-        if progress is not None:
-            progress(len(scans) if k == n_steps - 1 else int(si) + 1, len(scans))
+        if progress is not None and progress(len(scans) if k == n_steps - 1 else int(si) + 1, len(scans)):
+            if k < n_steps - 1:  # asked to stop (Ctrl-C): the result of a run that ended here
+                survivors = np.flatnonzero(parent == best) if resampled else [best]
+                final_map = maps.image(int(survivors[0]) if len(survivors) else 0)
+                n_steps, step_scans = k + 1, step_scans[: k + 1]
+                hist_poses, hist_parent, causal = hist_poses[:n_steps], hist_parent[:n_steps], causal[:n_steps]
+                hist_w = None if hist_w is None else hist_w[:n_steps]
+                scans, times, odom = scans[: si + 1], times[: si + 1], odom[: si + 1]
+            break
     runtime = time.perf_counter() - t_loop
 
     # `best` indexes the last step's particles before resampling (the set hist_poses[-1]

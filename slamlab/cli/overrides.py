@@ -1,0 +1,101 @@
+"""Check `slamlab key=value ...` before Hydra sees it, so a typo gets one clear line:
+
+    unknown key 'partciles' (did you mean 'particles'?)
+    unknown choice 'systemtic' for resampler (did you mean 'systematic'?); choices: multinomial, residual, stratified, systematic
+
+Hydra would answer the first with the advice to write `+partciles=50` (which then silently
+runs with the default), and the second with its config search path. Only mistakes this
+module is sure of are reported; anything else is left to Hydra's own messages.
+"""
+
+from __future__ import annotations
+
+import difflib
+from importlib import resources
+
+# Options that point Hydra at another config (slamlab-verify's re-run): not our groups and keys.
+FOREIGN_CONFIG_FLAGS = ("--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd",
+                        "--experimental-rerun", "--shell-completion", "-sc")
+PRESET_GROUP = "experiment"
+
+
+def config_groups() -> dict[str, list[str]]:
+    """{group: sorted choices} of slamlab's own config groups (conf/<group>/<choice>.yaml)."""
+    root = resources.files("slamlab.conf")
+    return {
+        d.name: sorted(f.name[: -len(".yaml")] for f in d.iterdir() if f.name.endswith(".yaml"))
+        for d in root.iterdir()
+        if d.is_dir() and d.name not in ("hydra", "__pycache__")
+    }
+
+
+def _suggest(word: str, candidates: list[str]) -> str:
+    close = difflib.get_close_matches(word, candidates, n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def _dotted_keys(node: object, prefix: str = "") -> list[str]:
+    """Every key path in a nested dict: ['particles', 'steps', 'steps.every', ...]."""
+    out = []
+    if isinstance(node, dict):
+        for k, v in node.items():
+            key = f"{prefix}{k}"
+            out.append(key)
+            out.extend(_dotted_keys(v, key + "."))
+    return out
+
+
+def _values(override) -> list[str]:
+    if override.is_sweep_override():
+        try:
+            return list(override.sweep_string_iterator())
+        except Exception:  # noqa: BLE001 - e.g. a range over a group: Hydra will say
+            return []
+    return [override.get_value_element_as_str()]
+
+
+def check_overrides(argv: list[str]) -> str | None:
+    """None if every `key=value` in `argv` names a known key or group choice, else the message."""
+    if any(a.split("=", 1)[0] in FOREIGN_CONFIG_FLAGS for a in argv):
+        return None
+    args = [a for a in argv if "=" in a and not a.startswith("-")]
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+
+    try:
+        overrides = OverridesParser.create().parse_overrides(args)
+    except HydraException:
+        return None  # a syntax error: Hydra's message shows where
+    groups = config_groups()
+    keys, group_choices = [], []
+    for o in overrides:
+        name = o.key_or_group
+        if name.startswith("hydra") or o.is_delete() or o.package is not None:
+            continue
+        if name in groups:
+            values = _values(o)
+            for v in values:
+                if v not in groups[name]:
+                    return (f"unknown choice '{v}' for {name}{_suggest(v, groups[name])}; "
+                            f"choices: {', '.join(groups[name])}")
+            if name == PRESET_GROUP and not (o.is_add() or o.is_force_add()):
+                return f"presets are added with '+': +{PRESET_GROUP}={values[0] if values else 'NAME'}"
+            if values:
+                group_choices.append(f"{o.input_line.split('=', 1)[0]}={values[0]}")
+        else:
+            keys.append(name)
+    if not keys:
+        return None
+    from hydra import compose, initialize_config_module
+    from omegaconf import OmegaConf
+
+    try:
+        with initialize_config_module(config_module="slamlab.conf", version_base="1.3"):
+            cfg = compose(config_name="config", overrides=group_choices)
+    except HydraException:
+        return None
+    known = _dotted_keys(OmegaConf.to_container(cfg, resolve=False))
+    for key in keys:
+        if key not in known:
+            return f"unknown key '{key}'{_suggest(key, known)}"
+    return None
