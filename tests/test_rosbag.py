@@ -103,7 +103,7 @@ def test_relations_beside_the_bag_score_it(intel, intel_bags, shared_data, tmp_p
     assert seq.relations is not None and len(seq.relations.t1) == len(inside)
     assert seq.sources == [str(bag), str(tmp_path / "intel.relations")]
     # the whole log's relations name scans the bag does not have: refused, with the line
-    with pytest.raises(DataError, match=r"intel.relations: line \d+, field 't[12]'.*not the stamp of any scan"):
+    with pytest.raises(DataError, match=r"intel.relations: line \d+, field 't[12]'.*has no scan in intel.bag within"):
         load_rosbag(bag, relations=shared_data / "carmen" / "intel.relations")
 
 

@@ -154,6 +154,23 @@ def load_relations(path: str | Path) -> Relations:
     return _read_relations(Path(path))[0]
 
 
+def relations_for_log(
+    log_path: Path, stem: str, relations: str | Path | None, times: np.ndarray, tol_s: float
+) -> tuple[Relations | None, Path | None]:
+    """The benchmark relations of a log (CARMEN, ROS bag): the file `relations`, else
+    `<stem>.relations` beside the log when there is one (else (None, None)). A relations file
+    of another log would only fail at evaluation, after a long run: every stamp is matched to
+    its scan (`times`, s) within `tol_s` now, and the scan's own time is used from here on."""
+    if relations is not None:
+        rel_path = Path(relations)
+    else:
+        rel_path = log_path.parent / f"{stem}.relations"
+        if not rel_path.is_file():
+            return None, None
+    rel, rel_lines = _read_relations(rel_path)
+    return snap_relations(rel, rel_lines, times, tol_s, log_name=log_path.name), rel_path
+
+
 def _read_relations(path: Path) -> tuple[Relations, list[int]]:
     """The relations and the line number of each."""
     text = _read_text(path)
@@ -627,19 +644,8 @@ def load_carmen(
         warnings.warn(f"{path}: {impossible} negative, NaN or inf range readings dropped as invalid beams",
                       RuntimeWarning, stacklevel=2)  # fmt: skip
 
-    rel_path: Path | None
-    if relations is not None:
-        rel_path = Path(relations)
-    else:
-        guess = path.parent / f"{_log_stem(path)}.relations"
-        rel_path = guess if guess.is_file() else None
-    rel = None
-    if rel_path is not None:
-        rel, rel_lines = _read_relations(rel_path)
-        # A relations file of another log would only fail at evaluation, after a long run:
-        # match every stamp to its scan now, and use the scan's own time from here on.
-        times = np.array([s.t for s in scans])  # type: ignore[union-attr]
-        rel = snap_relations(rel, rel_lines, times, relations_time_tol_s, log_name=path.name)
+    times = np.array([s.t for s in scans])  # type: ignore[union-attr]
+    rel, rel_path = relations_for_log(path, _log_stem(path), relations, times, relations_time_tol_s)
 
     sources = [str(path)] + ([str(rel_path)] if rel_path is not None else [])
     seq = Sequence(

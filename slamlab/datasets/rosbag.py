@@ -37,10 +37,10 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from slamlab.datasets.carmen import _read_relations
+from slamlab.datasets.carmen import relations_for_log
 from slamlab.errors import ConfigError, DataError
-from slamlab.eval.relations import find_times
-from slamlab.frames import Relations, ScanFrame, Sequence
+from slamlab.eval.relations import DEFAULT_RELATIONS_TOL_S
+from slamlab.frames import ScanFrame, Sequence
 from slamlab.geometry import FloatArray, rot_z, trans, wrap_angle
 
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
@@ -326,6 +326,7 @@ def load_rosbag(
     laser_pose: list[float] | None = None,
     max_time_back_s: float = 2.0,
     name: str | None = None,
+    relations_time_tol_s: float = DEFAULT_RELATIONS_TOL_S,
 ) -> Sequence:
     """Load the 2D scans and odometry of a ROS bag as a `Sequence` (see the module docstring).
 
@@ -336,19 +337,20 @@ def load_rosbag(
     odom_frame: the odometry frame for /tf (default `odom`). laser_pose: [x m, y m, yaw rad]
     of the laser in the base frame, overriding /tf_static. max_time_back_s: the largest step
     back of scan stamps accepted (s). name: sequence name (default: the bag's stem).
+    relations_time_tol_s: a relation stamp is matched to the nearest scan within this (s).
     """
     path = Path(path)
     reader = _open(path)
     try:
         return _read(reader, path, scan_topic, odom_topic, relations, base_frame, odom_frame, laser_pose,
-                     max_time_back_s, name)  # fmt: skip
+                     max_time_back_s, name, relations_time_tol_s)  # fmt: skip
     finally:
         reader.close()
 
 
 def _read(reader: Any, path: Path, scan_topic: str | None, odom_topic: str | None, relations: str | Path | None,
           base_frame: str | None, odom_frame: str, laser_pose: list[float] | None, max_time_back_s: float,
-          name: str | None) -> Sequence:  # fmt: skip
+          name: str | None, relations_time_tol_s: float) -> Sequence:  # fmt: skip
     topics = _choose_topics(path, _topics_of(reader.connections), scan_topic, odom_topic)
     edges = _static_edges(reader, path)
     odom_frame = _frame(odom_frame)
@@ -420,7 +422,7 @@ def _read(reader: Any, path: Path, scan_topic: str | None, odom_topic: str | Non
     if not scans:
         raise DataError(path, f"no scan on {topics.scan} lies within the odometry's time span ({topics.odom})")
 
-    rel, rel_path = _relations(path, relations, np.array([s.t for s in scans]))
+    rel, rel_path = relations_for_log(path, path.stem, relations, np.array([s.t for s in scans]), relations_time_tol_s)
     seq = Sequence(
         name=name if name is not None else path.stem,
         scans=scans,
@@ -432,23 +434,3 @@ def _read(reader: Any, path: Path, scan_topic: str | None, odom_topic: str | Non
     if maker.range_min > 0:  # else keep the Sequence default (a bag's range_min of 0 says nothing)
         seq.min_range_m = maker.range_min
     return seq
-
-
-def _relations(path: Path, relations: str | Path | None, times: np.ndarray) -> tuple[Relations | None, Path | None]:
-    """The relations file (given, or `<stem>.relations` beside the bag) checked against the scan times."""
-    if relations is not None:
-        rel_path = Path(relations)
-    else:
-        guess = path.parent / f"{path.stem}.relations"
-        if not guess.is_file():
-            return None, None
-        rel_path = guess
-    rel, linenos = _read_relations(rel_path)
-    for name_t, query in (("t1", rel.t1), ("t2", rel.t2)):
-        _, found = find_times(times, query)
-        if not found.all():
-            k = int(np.argmin(found))
-            raise DataError(rel_path, f"{query[k]:.6f} is not the stamp of any scan in {path.name} "
-                            f"({int(np.count_nonzero(~found))} relations affected; wrong relations file?)",
-                            record=f"line {linenos[k]}", field=name_t)  # fmt: skip
-    return rel, rel_path
