@@ -32,3 +32,13 @@ def verify_cli(args: list[str], cache: Path | None = None, timeout: float = 900)
     """`slamlab-verify ARGS`, waited for."""
     return subprocess.run([sys.executable, "-m", "slamlab.cli.verify", *args], env=cli_env(cache),
                           capture_output=True, text=True, timeout=timeout)
+
+
+def sweep_cli(sweep_dir: Path, args: list[str], cache: Path | None = None, timeout: float = 900) -> subprocess.CompletedProcess:
+    """`slamlab -m ARGS` with the package's own config folder into `sweep_dir` (made by the
+    caller's tmp factory; its parent is the working directory), waited for."""
+    import slamlab
+
+    conf = Path(slamlab.__file__).resolve().parent / "conf"
+    return slamlab_cli(["-cp", str(conf), "-m", *args, f"hydra.sweep.dir={sweep_dir}"], cwd=sweep_dir.parent,
+                       cache=cache, timeout=timeout)

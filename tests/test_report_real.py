@@ -7,35 +7,25 @@ then rebuilt by `slamlab-report`; both are checked against the runs' metrics.jso
 from __future__ import annotations
 
 import json
-import os
 import re
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-import slamlab
 from slamlab.cli.report import main as report_main
 from slamlab.report.columns import METRICS, get_metric
+from cli_helpers import sweep_cli
 
 pytestmark = pytest.mark.slow
 
-CONF = Path(slamlab.__file__).resolve().parent / "conf"
-SLAMLAB = shutil.which("slamlab", path=str(Path(sys.executable).parent)) or shutil.which("slamlab")
 
 
 @pytest.fixture(scope="module")
 def real_sweep(tmp_path_factory, sim_cache: Path) -> Path:
-    if SLAMLAB is None or not (CONF / "dataset" / "sim.yaml").is_file():
-        pytest.skip("the slamlab app or the sim dataset config is not available")
     sweep = tmp_path_factory.mktemp("real") / "sweep"
-    env = dict(os.environ, SLAMLAB_CACHE_DIR=str(sim_cache))
-    cmd = [SLAMLAB, "-cp", str(CONF), "-m", "particles=5,10", "seed=0,1", "dataset.duration_s=6", "dataset.rgbd=false", "texture=none",
-           "progress=off", f"hydra.sweep.dir={sweep}",
-           "++hydra.callbacks.sweep_report._target_=slamlab.report.callback.SweepReportCallback"]
-    proc = subprocess.run(cmd, cwd=sweep.parent, env=env, capture_output=True, text=True, timeout=600)
+    proc = sweep_cli(sweep, ["particles=5,10", "seed=0,1", "dataset.duration_s=6", "dataset.rgbd=false", "texture=none",
+                             "progress=off", "++hydra.callbacks.sweep_report._target_=slamlab.report.callback.SweepReportCallback"],
+                     cache=sim_cache, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return sweep
 

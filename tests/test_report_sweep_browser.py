@@ -9,8 +9,6 @@ fail and the sweep goes on. Skips without Chromium unless SLAMLAB_REQUIRE_BROWSE
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 import time
 from pathlib import Path
 
@@ -20,7 +18,7 @@ import pytest
 from slamlab.report import build_sweep_report
 from slamlab.report.rundir import load_run
 import test_report_screenshot as screenshot_tests
-from test_report_real import CONF, SLAMLAB  # the app and its config folder, as the real-run tests find them
+from cli_helpers import sweep_cli
 
 shots = screenshot_tests.shots  # benchmarks/screenshot_reports.py: the Chromium driver
 pytestmark = screenshot_tests.pytestmark  # slow; skipped without Chromium unless required
@@ -30,15 +28,12 @@ CONFIGS = [(p, r) for p in (4, 8) for r in ("systematic", "residual")]
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory, sim_cache: Path) -> Path:
-    if SLAMLAB is None or not (CONF / "dataset" / "sim.yaml").is_file():
-        pytest.skip("the slamlab app or the sim dataset config is not available")
     root = tmp_path_factory.mktemp("browser") / "sweep"
-    env = dict(os.environ, SLAMLAB_CACHE_DIR=str(sim_cache))
-    cmd = [SLAMLAB, "-cp", str(CONF), "-m", "particles=0,4,8", "resampler=systematic,residual", "seed=0,1",
-           "dataset.duration_s=20", "steps.max_scans=300", "report=false", "progress=off", f"hydra.sweep.dir={root}"]
     # report=false: no per-run reports and no sweep report at the end; the tests build it
-    proc = subprocess.run(cmd, cwd=root.parent, env=env, capture_output=True, text=True, timeout=900)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    proc = sweep_cli(root, ["particles=0,4,8", "resampler=systematic,residual", "seed=0,1", "dataset.duration_s=20",
+                            "steps.max_scans=300", "report=false", "progress=off"], cache=sim_cache)
+    # the particles=0 jobs fail on purpose: the sweep says so and exits 1
+    assert proc.returncode == 1 and "4 of 12 runs failed" in proc.stderr, proc.stderr[-3000:]
     return root
 
 
