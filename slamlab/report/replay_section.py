@@ -16,7 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slamlab.eval.trajectory import sample_onto
+from slamlab.frames import GridImage
 from slamlab.report.rundir import RunDir, Trajectory
+from slamlab.slam.replay import snapshot_steps
 
 REPLAY_FILE = "replay.npz"
 FRAME_PX = 640  # longest side of a replay frame (pixels)
@@ -53,23 +56,14 @@ def _window(extent: np.ndarray, path: Trajectory | None, margin_m: float = 1.0) 
 
 
 def frame_image(pixels: np.ndarray, extent: np.ndarray, window: tuple[float, float, float, float], w: int, h: int) -> np.ndarray:
-    """A snapshot map (uint8, row 0 = lowest y, covering `extent`) sampled at the centres of a
-    w x h image of `window` (row 0 = top, as images are stored); unknown grey outside it."""
-    x0, x1, y0, y1 = window
-    xs = x0 + (np.arange(w) + 0.5) * (x1 - x0) / w
-    ys = y1 - (np.arange(h) + 0.5) * (y1 - y0) / h
-    ex0, ex1, ey0, ey1 = (float(v) for v in extent)
-    c = np.floor((xs - ex0) / (ex1 - ex0) * pixels.shape[1]).astype(np.int64)
-    r = np.floor((ys - ey0) / (ey1 - ey0) * pixels.shape[0]).astype(np.int64)
-    out = np.full((h, w), 128, np.uint8)
-    ok_r = (r >= 0) & (r < pixels.shape[0])
-    ok_c = (c >= 0) & (c < pixels.shape[1])
-    out[np.ix_(ok_r, ok_c)] = pixels[np.ix_(r[ok_r], c[ok_c])]
-    return out
-
-
-def _thin(n: int, limit: int) -> np.ndarray:
-    return np.unique(np.linspace(0, n - 1, min(n, limit)).round().astype(np.int64)) if n else np.zeros(0, np.int64)
+    """A snapshot map (uint8, row 0 = lowest y, square cells covering `extent`) sampled at
+    the centres of a w x h image of `window` (row 0 = top, as images are stored); unknown
+    grey outside the snapshot."""
+    ex0, ex1, ey0, _ = (float(v) for v in extent)
+    src = GridImage(pixels, (ex1 - ex0) / pixels.shape[1], (ex0, ey0))
+    dst = GridImage(np.zeros((h, w)), (window[1] - window[0]) / w, (window[0], window[2]))
+    values = sample_onto(src, dst)
+    return np.flipud(np.where(np.isnan(values), 128, values)).astype(np.uint8)
 
 
 def replay_section(run: RunDir) -> ReplaySection | None:
@@ -87,6 +81,7 @@ def replay_section(run: RunDir) -> ReplaySection | None:
     span = max(window[1] - window[0], window[3] - window[2])
     w = max(1, int(round(FRAME_PX * (window[1] - window[0]) / span)))
     h = max(1, int(round(FRAME_PX * (window[3] - window[2]) / span)))
+    window = (window[0], window[1], window[2], window[2] + h * (window[1] - window[0]) / w)  # square pixels
 
     frames, snaps = [], []
     pix_at = np.concatenate([[0], np.cumsum(shapes[:, 0] * shapes[:, 1])])
@@ -106,11 +101,11 @@ def replay_section(run: RunDir) -> ReplaySection | None:
 
     data: dict = {"window": window, "w": w, "h": h, "snaps": snaps, "t0": float(z["t"][0])}
     if best_path is not None:
-        keep = _thin(len(best_path), MAX_PATH_POINTS)
+        keep = snapshot_steps(len(best_path), MAX_PATH_POINTS)
         data["path"] = {"t": np.round(best_path.t[keep] - z["t"][0], 3).tolist(), "xy": np.round(best_path.xy[keep], 2).tolist()}
     steps = run.load_steps()
     if steps is not None and "neff" in steps and len(steps):
-        keep = _thin(len(steps), MAX_CURVE_POINTS)
+        keep = snapshot_steps(len(steps), MAX_CURVE_POINTS)
         t = steps["t"].to_numpy(float) - z["t"][0] if "t" in steps else np.arange(len(steps), dtype=float)
         data["neff"] = {"t": np.round(t[keep], 2).tolist(), "v": np.round(steps["neff"].to_numpy(float)[keep], 2).tolist(),
                         "n": run.particles or float(steps["neff"].max())}
