@@ -36,25 +36,6 @@ def find_browser() -> str | None:
     return None
 
 
-def screenshot(html: Path, png: Path, width: int = 1400, height: int = 2000, timeout_s: float = 60.0) -> Path:
-    """Render a local HTML file with headless Chromium (no network, throwaway profile) into a PNG."""
-    browser = find_browser()
-    if browser is None:
-        raise RuntimeError("no Chromium found: apt-get install -y chromium")
-    png.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix="slamlab-chromium-") as profile:
-        cmd = [
-            browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-            "--disable-background-networking", "--disable-component-update", "--disable-sync",
-            f"--user-data-dir={profile}", f"--screenshot={png}", f"--window-size={width},{height}",
-            "--hide-scrollbars", Path(html).resolve().as_uri(),
-        ]
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
-    if proc.returncode != 0 or not png.is_file() or png.stat().st_size == 0:
-        raise RuntimeError(f"chromium failed ({proc.returncode}) on {html}: {proc.stderr[-2000:]}")
-    return png
-
-
 def _chromium(args: list[str], timeout_s: float) -> subprocess.CompletedProcess:
     browser = find_browser()
     if browser is None:
@@ -66,6 +47,16 @@ def _chromium(args: list[str], timeout_s: float) -> subprocess.CompletedProcess:
             f"--user-data-dir={profile}", *args,
         ]
         return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+
+
+def screenshot(html: Path, png: Path, width: int = 1400, height: int = 2000, timeout_s: float = 60.0) -> Path:
+    """Render a local HTML file with headless Chromium (no network, throwaway profile) into a PNG."""
+    png.parent.mkdir(parents=True, exist_ok=True)
+    proc = _chromium([f"--screenshot={png}", f"--window-size={width},{height}", "--hide-scrollbars",
+                      Path(html).resolve().as_uri()], timeout_s)
+    if proc.returncode != 0 or not png.is_file() or png.stat().st_size == 0:
+        raise RuntimeError(f"chromium failed ({proc.returncode}) on {html}: {proc.stderr[-2000:]}")
+    return png
 
 
 def screenshot_full(html: Path, png: Path, width: int = 1400, max_height: int = 16000, timeout_s: float = 120.0) -> Path:

@@ -15,6 +15,7 @@ import time
 import traceback
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from hydra.errors import InstantiationException
@@ -27,6 +28,9 @@ from slamlab.frames import Relations, Sequence
 from slamlab.manifest import build_manifest
 from slamlab.progress import make_progress
 from slamlab.slam.result import SlamResult
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 log = logging.getLogger("slamlab")
 
@@ -176,7 +180,7 @@ def relations_within(relations: Relations, times: np.ndarray) -> Relations:
     return Relations(relations.t1[keep], relations.t2[keep], relations.rel[keep], relations.path)
 
 
-def relation_table(seq: Sequence, result: SlamResult) -> "pd.DataFrame | None":
+def relation_table(seq: Sequence, result: SlamResult) -> pd.DataFrame | None:
     """One row per relation inside the run, for the report's error-over-time plot
     (relations.csv): t1, t2 (s), length_m (the relation's true translation), and the
     SLAM and odometry errors (trans m, rot deg)."""
