@@ -96,6 +96,28 @@ def test_frame_image_places_a_snapshot_in_the_window() -> None:
     assert img[0, 0] == 128 and img[1, 1] == 255 and img[2, 2] == 0 and img[2, 1] == 255 and img[3, 3] == 128
 
 
+def test_replay_keeps_its_frames_inside_the_page_budget(tmp_path: Path, monkeypatch) -> None:
+    from slamlab.report import replay_section as rs
+    from slamlab.report.rundir import load_run
+
+    # a fabricated run with 40 snapshots of a noisy (incompressible) map
+    rng = np.random.default_rng(0)
+    n, shape = 40, (64, 64)
+    (tmp_path / "metrics.json").write_text(json.dumps({"status": "ok"}))
+    np.savez(tmp_path / "replay.npz", step=np.arange(n), scan_index=np.arange(n), t=np.arange(n, dtype=float),
+             poses=np.zeros((n, 3, 3), np.float32), best=np.zeros(n, np.int64), scan_xy=np.zeros((0, 2), np.float32),
+             scan_count=np.zeros(n, np.int64), map_pixels=rng.integers(0, 256, n * 64 * 64).astype(np.uint8),
+             map_shape=np.tile(shape, (n, 1)), map_extent=np.tile([0.0, 6.4, 0.0, 6.4], (n, 1)))
+    full = rs.replay_section(load_run(tmp_path))
+    assert full is not None and full.count == n
+    budget = sum(len(f) for f in full.frames) // 3
+    monkeypatch.setattr(rs, "FRAMES_BUDGET_BYTES", budget)
+    thinned = rs.replay_section(load_run(tmp_path))
+    assert n // 4 <= thinned.count <= n // 3 + 1 and sum(len(f) for f in thinned.frames) <= budget * 1.1
+    snaps = json.loads(thinned.data_json)["snaps"]
+    assert len(snaps) == thinned.count and snaps[-1]["step"] == n - 1  # the end of the run stays
+
+
 # ---- real runs --------------------------------------------------------------------------------
 @pytest.mark.slow
 def test_sim_run_records_a_replay_that_matches_its_results(sim_run: Path) -> None:

@@ -25,6 +25,7 @@ REPLAY_FILE = "replay.npz"
 FRAME_PX = 640  # longest side of a replay frame (pixels)
 MAX_PATH_POINTS = 3000
 MAX_CURVE_POINTS = 1200
+FRAMES_BUDGET_BYTES = 4_000_000  # the frames' share of the 8 MB page budget
 
 
 @dataclass(frozen=True, slots=True)
@@ -98,6 +99,11 @@ def replay_section(run: RunDir) -> ReplaySection | None:
             "pose": np.round(z["poses"][i][best], 3).tolist(),
             "points": np.round(z["scan_xy"][scan_at[i]:scan_at[i + 1]], 2).tolist(),
         })
+    size = sum(len(f) for f in frames)
+    if size > FRAMES_BUDGET_BYTES:  # a huge, detailed map: fewer snapshots, never a page over budget
+        every = int(np.ceil(size / FRAMES_BUDGET_BYTES))
+        keep = sorted(set(range(0, len(frames), every)) | {len(frames) - 1})
+        frames, snaps = [frames[i] for i in keep], [snaps[i] for i in keep]
 
     data: dict = {"window": window, "w": w, "h": h, "snaps": snaps, "t0": float(z["t"][0])}
     if best_path is not None:
