@@ -18,10 +18,9 @@ import numpy as np
 
 from slamlab.eval.trajectory import sample_onto
 from slamlab.frames import GridImage
-from slamlab.report.rundir import RunDir, Trajectory
+from slamlab.report.rundir import REPLAY_FILE, RunDir, Trajectory
 from slamlab.slam.replay import snapshot_steps
 
-REPLAY_FILE = "replay.npz"
 FRAME_PX = 640  # longest side of a replay frame (pixels)
 MAX_PATH_POINTS = 3000
 MAX_CURVE_POINTS = 1200
