@@ -1,10 +1,13 @@
 """Open the run and sweep reports in headless Chromium and save screenshots.
 
     .venv/bin/python benchmarks/screenshot_reports.py [SWEEP_DIR] [-o OUT_DIR]
+    .venv/bin/python benchmarks/screenshot_reports.py --run RUN_DIR [-o OUT_DIR]
 
 With SWEEP_DIR (a `slamlab -m` sweep), screenshots that sweep's report and its first run's
 report (building them if missing); without it, a 12-run sweep is fabricated
-(tests/report_fixtures.py). Prints the PNG paths. Needs `chromium` (apt-get install chromium).
+(tests/report_fixtures.py). With --run, screenshots one run's report at full height
+(`screenshot_full`). Prints the PNG paths. `page_check` asks a page, from inside Chromium,
+whether its images decode and its replay works (used by the tests). Needs `chromium` (apt-get install chromium).
 """
 
 from __future__ import annotations
@@ -50,7 +53,7 @@ def _chromium(args: list[str], timeout_s: float) -> subprocess.CompletedProcess:
 
 
 def screenshot(html: Path, png: Path, width: int = 1400, height: int = 2000, timeout_s: float = 60.0) -> Path:
-    """Render a local HTML file with headless Chromium into a PNG of width x height px."""
+    """Render a local HTML file with headless Chromium (no network, throwaway profile) into a PNG."""
     png.parent.mkdir(parents=True, exist_ok=True)
     proc = _chromium([f"--screenshot={png}", f"--window-size={width},{height}", "--hide-scrollbars",
                       Path(html).resolve().as_uri()], timeout_s)
@@ -104,6 +107,66 @@ def full_page_screenshot(html: Path, png: Path, width: int = 1400) -> Path:
     return screenshot(Path(html), Path(png), width, max(800, int(page_facts(Path(html), width)["height"])))
 
 
+def screenshot_full(html: Path, png: Path, width: int = 1400, max_height: int = 16000, timeout_s: float = 120.0) -> Path:
+    """A full-height screenshot: render tall, then cut the empty rows below the page's end."""
+    from PIL import Image, ImageChops
+
+    screenshot(html, png, width, max_height, timeout_s)
+    with Image.open(png) as im:
+        rgb = im.convert("RGB")
+    bg = Image.new("RGB", rgb.size, rgb.getpixel((rgb.width - 1, rgb.height - 1)))
+    bbox = ImageChops.difference(rgb, bg).getbbox()
+    if bbox is not None:
+        rgb.crop((0, 0, rgb.width, min(rgb.height, bbox[3] + 16))).save(png)
+    return png
+
+
+# Appended to a copy of the page: waits for every image (and the replay's frames) to decode,
+# moves the replay slider, and writes what it found into the DOM for --dump-dom to return.
+_CHECK_SCRIPT = """<script>
+(async function () {
+  // an image decoded when it finished loading with a size; wait for pending ones (up to 10 s)
+  const loaded = (im) => (im.complete ? Promise.resolve() : new Promise((ok) => {
+    im.addEventListener("load", ok); im.addEventListener("error", ok); setTimeout(ok, 10000); }))
+    .then(() => im.naturalWidth > 0 && im.naturalHeight > 0);
+  const res = {images: document.images.length, failed: []};
+  try {
+  await Promise.all([...document.images].map((im, i) => loaded(im).then((ok) => ok || res.failed.push(im.alt || String(i)))));
+  const r = window.slamlabReplay;
+  if (r) {
+    res.replay_frames = r.count;
+    await Promise.all(r.frames.map((im, i) => loaded(im).then((ok) => ok || res.failed.push("replay frame " + i))));
+    const cv = document.getElementById("replay-canvas");
+    r.show(0); const first = cv.toDataURL();
+    r.show(r.count - 1); const last = cv.toDataURL();
+    res.replay_changes = first !== last;
+    res.replay_slider = document.getElementById("replay-slider") !== null;
+  }
+  res.sections = [...document.querySelectorAll("section[id]")].map((s) => s.id);
+  } catch (e) { res.error = String(e); }
+  const pre = document.createElement("pre"); pre.id = "slamlab-check"; pre.textContent = JSON.stringify(res);
+  document.body.appendChild(pre);
+})();
+</script>"""
+
+
+def page_check(html: Path, timeout_s: float = 120.0) -> dict:
+    """Open a copy of `html` in headless Chromium with a checking script and return its
+    findings: `images` (count), `failed` (images that did not decode), `sections` (ids),
+    and for a replay `replay_frames`, `replay_slider`, `replay_changes` (the canvas differs
+    between the first and last snapshot)."""
+    text = Path(html).read_text(encoding="utf-8")
+    with tempfile.TemporaryDirectory(prefix="slamlab-check-") as tmp:
+        page = Path(tmp) / "page.html"
+        page.write_text(text.replace("</body>", _CHECK_SCRIPT + "</body>"), encoding="utf-8")
+        proc = _chromium(["--virtual-time-budget=20000", "--dump-dom", page.as_uri()], timeout_s)
+    start = proc.stdout.find('<pre id="slamlab-check">')
+    if start < 0:
+        raise RuntimeError(f"the page check did not finish on {html}: {proc.stderr[-2000:]}")
+    end = proc.stdout.index("</pre>", start)
+    return json.loads(html_lib.unescape(proc.stdout[start + len('<pre id="slamlab-check">'):end]))
+
+
 def _fabricated_sweep(root: Path) -> Path:
     from report_fixtures import make_sweep, particles_seed_grid
 
@@ -117,12 +180,19 @@ def _fabricated_sweep(root: Path) -> Path:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("sweep", nargs="?", type=Path, help="a sweep directory (default: fabricate one)")
+    p.add_argument("--run", type=Path, default=None, help="screenshot this run's report.html at full height instead")
     p.add_argument("-o", "--out", type=Path, default=None, help="where PNGs go (default reports/screenshots/<time>)")
     args = p.parse_args(argv)
 
     from slamlab.report import build_sweep_report, find_run_dirs, load_run, write_run_report
 
     out = args.out or ROOT / "reports" / "screenshots" / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    if args.run is not None:
+        html = args.run / "report.html"
+        if not html.is_file():
+            html = write_run_report(args.run)
+        print(screenshot_full(html, out / f"run_{args.run.name}.png"))
+        return 0
     with tempfile.TemporaryDirectory(prefix="slamlab-shots-") as tmp:
         sweep = args.sweep if args.sweep is not None else _fabricated_sweep(Path(tmp))
         runs = find_run_dirs([sweep])

@@ -171,9 +171,16 @@ def read_map(run_dir: Path) -> GridImage:
 def write_consistency(run_dir: Path, series: dict[str, np.ndarray]) -> None:
     """consistency.csv: t (s), scan_index, hit_fraction of the scans the consistency score
     replayed (slamlab.eval.consistency)."""
-    table = pd.DataFrame(series)
-    table["t"] = table["t"].map(lambda v: f"{v:.6f}")
-    write_text(Path(run_dir) / "consistency.csv", table.to_csv(index=False, float_format="%.6g"))
+    write_table(Path(run_dir) / "consistency.csv", pd.DataFrame(series))
+
+
+def write_table(path: Path, table: pd.DataFrame) -> None:
+    """A CSV table; a `t*` column of epoch times keeps microseconds."""
+    table = table.copy()
+    for col in table.columns:
+        if col in ("t", "t1", "t2"):
+            table[col] = table[col].map(lambda v: f"{v:.6f}")
+    write_text(Path(path), table.to_csv(index=False, float_format="%.6g"))
 
 
 def write_npz(path: Path, **arrays: np.ndarray) -> None:

@@ -14,6 +14,7 @@ import traceback
 import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from hydra.errors import InstantiationException
@@ -29,6 +30,9 @@ from slamlab.manifest import build_manifest
 from slamlab.memory import RunPeakMemory
 from slamlab.progress import make_progress
 from slamlab.slam.result import SlamResult
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 log = logging.getLogger("slamlab")
 
@@ -196,6 +200,26 @@ def relations_within(relations: Relations, times: np.ndarray) -> Relations:
     return Relations(relations.t1[keep], relations.t2[keep], relations.rel[keep], relations.path)
 
 
+def relation_table(seq: Sequence, result: SlamResult) -> pd.DataFrame | None:
+    """One row per relation inside the run, for the report's error-over-time plot
+    (relations.csv): t1, t2 (s), length_m (the relation's true translation), and the
+    SLAM and odometry errors (trans m, rot deg)."""
+    if seq.relations is None:
+        return None
+    import pandas as pd
+
+    from slamlab.eval.relations import relation_residuals
+
+    rel = relations_within(seq.relations, result.times)
+    if not len(rel.t1):
+        return None
+    cols = {"t1": rel.t1, "t2": rel.t2, "length_m": np.hypot(rel.rel[:, 0], rel.rel[:, 1])}
+    for name, poses in (("slam", result.trajectory), ("odometry", result.odometry)):
+        trans, rot = relation_residuals(result.times, poses, rel)
+        cols[f"{name}_trans_m"], cols[f"{name}_rot_deg"] = trans, np.degrees(np.abs(rot))
+    return pd.DataFrame(cols)
+
+
 def record_first_scan(cfg: DictConfig) -> bool:
     """`record.first_scan`, checked (a bool)."""
     v = OmegaConf.select(cfg, "record.first_scan", default=False)
@@ -205,12 +229,16 @@ def record_first_scan(cfg: DictConfig) -> bool:
 
 
 def write_recordings(run_dir: Path, result: SlamResult, cfg: DictConfig) -> None:
-    """particles.npz and first_scan.npz, when `record.*` asks for them (docs/RUN_DIRECTORY.md)."""
+    """particles.npz, replay.npz and first_scan.npz, when `record.*` asks for them (docs/RUN_DIRECTORY.md)."""
     h = result.particle_history
     if h is not None:
         step_scans = np.asarray(result.extras["step_scans"])
         artifacts.write_npz(run_dir / "particles.npz", t=result.times[step_scans],
                             poses=h.poses, weights=h.weights, parents=h.parents, resampled=h.resampled)
+    if result.replay is not None:
+        step_scans = np.asarray(result.extras["step_scans"])
+        artifacts.write_npz(run_dir / "replay.npz", scan_index=step_scans[result.replay["step"]],
+                            t=result.times[step_scans[result.replay["step"]]], **result.replay)
     if record_first_scan(cfg) and result.first_scan_xy is not None:
         artifacts.write_npz(run_dir / "first_scan.npz", points_xy=result.first_scan_xy,
                             sensor_xy=np.asarray(result.first_scan_origin), pose=result.trajectory[int(result.extras["step_scans"][0])])
@@ -221,12 +249,18 @@ def run_texture_stage(seq: Sequence, result: SlamResult, cfg: DictConfig, run_di
 
     Any failure here is reported in metrics and never loses the SLAM results.
     """
-    from slamlab.texture.pipeline import run_texture, save_texture_outputs, texture_metrics
+    from slamlab.texture.pipeline import run_texture, save_texture_outputs, save_truth_texture, texture_metrics
+    from slamlab.texture.samples import SAMPLE_FRAMES, write_samples
 
     occ = artifacts.occupancy_probability(result.log_odds.data)
     out: dict = {}
-    slam_tex = run_texture(seq, result.times, result.trajectory, result.log_odds, cfg.ground, cfg.texture)
+    slam_tex = run_texture(seq, result.times, result.trajectory, result.log_odds, cfg.ground, cfg.texture,
+                           sample_frames=SAMPLE_FRAMES)
     save_texture_outputs(slam_tex, occ, run_dir, prefix="texture")
+    if slam_tex.samples:
+        write_samples(run_dir / "ground_frames.npz", slam_tex.samples)
+    if seq.ground_truth is not None and seq.ground_truth.floor_texture is not None:
+        save_truth_texture(slam_tex, seq.ground_truth.floor_texture, run_dir / "texture_truth.png")
     # detection scores do not depend on the trajectory: score the detectors once, with SLAM
     odo_cfg = OmegaConf.merge(cfg.texture, {"evaluate_detectors": []})
     odo_tex = run_texture(seq, result.times, result.odometry, result.log_odds, cfg.ground, odo_cfg)
@@ -293,6 +327,9 @@ def run_pipeline(
             artifacts.write_tum(run_dir / "groundtruth.tum", result.times, seq.ground_truth.poses[: len(result.times)])
         artifacts.write_steps(run_dir, result.steps)
         artifacts.write_consistency(run_dir, consistency_series)
+        relations = relation_table(seq, result)
+        if relations is not None:
+            artifacts.write_table(run_dir / "relations.csv", relations)
         write_recordings(run_dir, result, cfg)
         artifacts.write_json(run_dir / "manifest.json", build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
         if stopper.requested:

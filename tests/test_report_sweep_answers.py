@@ -12,6 +12,7 @@ import os
 import re
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -188,26 +189,24 @@ def test_captions_say_no_ground_truth_when_there_is_none(tmp_path: Path) -> None
 
 
 def test_relation_error_over_time_from_the_runs_relations_file(tmp_path: Path) -> None:
-    """A CARMEN-style run: no ground truth, relations beside the log (found through
-    dataset.path as the run found them). Each relation's error is the mismatch between the
-    estimated and the recorded motion, placed at the time of its later scan."""
-    from slamlab.artifacts import write_tum
+    """A CARMEN-style run: no ground truth, its relations.csv written as the pipeline writes
+    it. Each relation's error is the mismatch between the estimated and the recorded motion,
+    placed at the time of its later scan."""
+    from slamlab.artifacts import write_table, write_tum
+    from slamlab.frames import Relations
+    from slamlab.pipeline import relation_table
     from slamlab.report.error_series import RELATIONS, error_series
 
     run = make_run_dir(tmp_path / "run", overrides=[], n_steps=20, groundtruth=False)
     t = 100.0 + np.arange(6, dtype=float)
     poses = np.column_stack([np.arange(6, dtype=float), np.zeros(6), np.zeros(6)])  # 1 m steps along x
     write_tum(run / "trajectory.tum", t, poses)
-    logs = tmp_path / "logs"
-    logs.mkdir()
-    (logs / "mini.clf.bz2").write_bytes(b"")  # only its name matters here
     # Recorded motions: 1 m (exact), 1.2 m (the estimate is 0.2 m short), 2 m over two steps.
-    (logs / "mini.relations").write_text(
-        "101.0 102.0 1.0 0 0 0 0 0\n102.0 103.0 1.2 0 0 0 0 0\n103.0 105.0 2.0 0 0 0 0 0\n")
-    config = json.loads((run / "manifest.json").read_text())
-    config["config"]["dataset"] = {"name": "carmen", "path": "logs/mini.clf.bz2"}
-    config["cwd"] = str(tmp_path)  # relative dataset.path: relative to where the run started
-    (run / "manifest.json").write_text(json.dumps(config))
+    rel = Relations(np.array([101.0, 102.0, 103.0]), np.array([102.0, 103.0, 105.0]),
+                    np.array([[1.0, 0, 0], [1.2, 0, 0], [2.0, 0, 0]]), "mini.relations")
+    seq = SimpleNamespace(relations=rel)
+    result = SimpleNamespace(times=t, trajectory=poses, odometry=poses)
+    write_table(run / "relations.csv", relation_table(seq, result))  # type: ignore[arg-type]
     es = error_series(load_run(run))
     assert es is not None and es.kind == RELATIONS
     assert es.t.tolist() == [2.0, 3.0, 5.0]  # later scan of each relation, s after the first pose

@@ -3,19 +3,17 @@
 - Simulated data: ATE per pose, the distance (m) between trajectory.tum and groundtruth.tum
   (both written one pose per processed scan, same timestamps).
 - Logs with relations (CARMEN + LOG.relations): the translational relation error (m) of
-  every relation inside the run, at the time of its later scan. The relations file is found
-  as the run found it: `dataset.relations`, else `<log stem>.relations` beside `dataset.path`.
+  every relation inside the run, at the time of its later scan, from the run's relations.csv.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
-from pathlib import Path
-
 import numpy as np
+import pandas as pd
 
-from slamlab.report.rundir import RunDir
+from slamlab.geometry import wrap_angle
+from slamlab.report.rundir import RELATIONS_FILE, RunDir, Trajectory
 
 ATE = "ate"
 RELATIONS = "relations"
@@ -31,59 +29,37 @@ class ErrorSeries:
     error_m: np.ndarray
 
 
+def pose_errors(estimate: Trajectory, truth: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pose translation (m) and absolute heading (deg) error of `estimate` against
+    `truth`, pose by pose (both files hold one pose per scan, same order)."""
+    n = min(len(estimate), len(truth))
+    d = np.hypot(*(estimate.xy[:n] - truth.xy[:n]).T)
+    r = np.degrees(np.abs(wrap_angle(estimate.yaw[:n] - truth.yaw[:n])))
+    return d, r
+
+
 def ate_series(run: RunDir) -> ErrorSeries | None:
     """Position error per pose against ground truth; None without both trajectories."""
     est, gt = run.load_trajectory("slam"), run.load_trajectory("groundtruth")
     if est is None or gt is None:
         return None
-    n = min(len(est), len(gt))
-    err = np.linalg.norm(est.xy[:n] - gt.xy[:n], axis=1)
-    return ErrorSeries(ATE, est.t[:n] - est.t[0], err)
-
-
-@lru_cache(maxsize=8)
-def _relations(path: str):
-    from slamlab.datasets.carmen import load_relations
-
-    return load_relations(path)
-
-
-def relations_file(run: RunDir) -> Path | None:
-    """The relations file the run was scored with, if it can still be found."""
-    ds = run.config.get("dataset")
-    if not isinstance(ds, dict):
-        return None
-    # Relative paths in the config were relative to where the run was started.
-    cwd = Path(str(run.manifest.get("cwd") or "."))
-    if ds.get("relations"):
-        p = cwd / str(ds["relations"])
-        return p if p.is_file() else None
-    if not ds.get("path"):
-        return None
-    from slamlab.datasets.carmen import _log_stem
-
-    log = cwd / str(ds["path"])
-    guess = log.parent / f"{_log_stem(log)}.relations"
-    return guess if guess.is_file() else None
+    err, _ = pose_errors(est, gt)
+    return ErrorSeries(ATE, est.t[: len(err)] - est.t[0], err)
 
 
 def relation_series(run: RunDir) -> ErrorSeries | None:
-    """Translational error of each relation the run covers; None without relations."""
-    from slamlab.eval.relations import relation_residuals
-    from slamlab.pipeline import relations_within
-
-    path = relations_file(run)
+    """Translational error of each relation the run covers, at the time of its later scan,
+    from the run's relations.csv; None without one."""
+    p = run.file(RELATIONS_FILE)
     est = run.load_trajectory("slam")
-    if path is None or est is None:
+    if p is None or est is None:
         return None
-    rel = relations_within(_relations(str(path.resolve())), est.t)
-    if len(rel.t1) == 0:
+    table = pd.read_csv(p)
+    if not len(table):
         return None
-    poses = np.column_stack([est.xy, est.yaw])
-    trans_m, _rot = relation_residuals(est.t, poses, rel)
-    t = np.maximum(rel.t1, rel.t2) - est.t[0]
+    t = np.maximum(table["t1"].to_numpy(float), table["t2"].to_numpy(float)) - est.t[0]
     order = np.argsort(t, kind="stable")
-    return ErrorSeries(RELATIONS, t[order], trans_m[order])
+    return ErrorSeries(RELATIONS, t[order], table["slam_trans_m"].to_numpy(float)[order])
 
 
 def error_series(run: RunDir) -> ErrorSeries | None:

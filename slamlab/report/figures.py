@@ -25,6 +25,7 @@ import pandas as pd  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from slamlab.report.rundir import LogOddsMap, Trajectory  # noqa: E402
+from slamlab.slam.replay import block_max  # noqa: E402
 
 DPI = 90
 # Fixed colours per trajectory kind, so every figure reads the same way.
@@ -44,12 +45,13 @@ class MapView:
     extent: tuple[float, float, float, float]
 
 
-def fig_to_data_uri(fig: Figure, dpi: int = DPI) -> str:
-    """Render and close a figure; return a base64 PNG data URI for an <img src>."""
+def fig_to_data_uri(fig: Figure, dpi: int = DPI, fmt: str = "png") -> str:
+    """Render and close a figure; return a base64 data URI for an <img src>. PNG for plots;
+    `fmt="jpeg"` for figures made of photos (camera frames), where PNG would be 5x larger."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    fig.savefig(buf, format=fmt, dpi=dpi, bbox_inches="tight", **({"pil_kwargs": {"quality": 85}} if fmt == "jpeg" else {}))
     plt.close(fig)
-    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+    return f"data:image/{fmt};base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
 def png_file_to_data_uri(path: Path, max_px: int = 900, min_px: int = 420, crop: bool = True,
@@ -82,6 +84,12 @@ def png_file_to_data_uri(path: Path, max_px: int = 900, min_px: int = 420, crop:
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
+def png_size(uri: str) -> tuple[int, int]:
+    """(width, height) of a PNG data URI, from its IHDR chunk (no decoding)."""
+    head = base64.b64decode(uri.split(",", 1)[1][:44])
+    return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+
+
 def prepare_map(m: LogOddsMap, max_px: int, trajectories: Sequence[Trajectory] = (), margin_m: float = 1.0) -> MapView:
     """Crop a log-odds grid to its observed cells (plus the trajectories and a margin) and
     reduce it by blocks so the longest side is <= max_px. Reduction keeps the most
@@ -109,12 +117,8 @@ def prepare_map(m: LogOddsMap, max_px: int, trajectories: Sequence[Trajectory] =
     r1, c1 = min(h, r1 + pad), min(w, c1 + pad)
     crop = data[r0:r1, c0:c1]
     k = max(1, int(math.ceil(max(crop.shape) / max_px)))
-    if k > 1:
-        ph, pw = (-crop.shape[0]) % k, (-crop.shape[1]) % k
-        padded = np.pad(crop, ((0, ph), (0, pw)), constant_values=0.0)
-        blocks = padded.reshape(padded.shape[0] // k, k, padded.shape[1] // k, k)
-        crop = blocks.max(axis=(1, 3))
-        # A block that saw only free cells has max < 0; unknown-only blocks stay 0.
+    # A block that saw only free cells has max < 0; unknown-only blocks stay 0.
+    crop = block_max(crop, k)
     p_occ = 1.0 / (1.0 + np.exp(-np.clip(crop.astype(np.float64), -30, 30)))
     extent = (ox + c0 * res, ox + (c0 + crop.shape[1] * k) * res, oy + r0 * res, oy + (r0 + crop.shape[0] * k) * res)
     return MapView(image=1.0 - p_occ, extent=extent)
@@ -129,31 +133,47 @@ def draw_map(ax, view: MapView | None) -> None:
 def map_with_trajectories(
     m: LogOddsMap | None,
     trajectories: dict[str, Trajectory | None],
-    max_px: int = 800,
-    figsize: tuple[float, float] = (9.5, 8.0),
+    max_px: int = 1200,
+    width_in: float = 15.0,
     title: str | None = None,
-) -> str:
+) -> tuple[str, bool]:
     """The map with the SLAM, odometry and ground-truth paths (keys of KIND_STYLE; None
-    entries skipped). Start marked with a circle, end with a square."""
+    entries skipped), drawn thin and translucent so walls stay visible. The window is the
+    mapped area plus the SLAM and true paths; odometry is clipped to it (on real logs it
+    drifts far outside). Returns (data URI, whether the odometry was clipped)."""
     trs = {k: v for k, v in trajectories.items() if v is not None and len(v)}
-    fig, ax = plt.subplots(figsize=figsize)
-    draw_map(ax, prepare_map(m, max_px, list(trs.values())) if m is not None else None)
+    framing = [tr for k, tr in trs.items() if k != "odometry" or m is None]
+    view = prepare_map(m, max_px, framing) if m is not None else None
+    if view is not None:
+        x0, x1, y0, y1 = view.extent
+    else:
+        xy = np.concatenate([tr.xy for tr in framing]) if framing else np.zeros((1, 2))
+        x0, y0 = xy.min(axis=0) - 1.0
+        x1, y1 = xy.max(axis=0) + 1.0
+    aspect = (y1 - y0) / max(x1 - x0, 1e-9)
+    fig, ax = plt.subplots(figsize=(width_in, float(np.clip(width_in * 0.82 * aspect, 4.0, 14.0))))
+    draw_map(ax, view)
+    clipped = False
     for kind in ("groundtruth", "odometry", "slam"):
         tr = trs.get(kind)
         if tr is None:
             continue
-        style = KIND_STYLE[kind]
+        style = {**KIND_STYLE[kind], "lw": 0.9, "alpha": 0.75}
         ax.plot(tr.xy[:, 0], tr.xy[:, 1], **style)
         ax.plot(tr.xy[-1, 0], tr.xy[-1, 1], "s", color=style["color"], ms=5)
+        if kind == "odometry":
+            clipped = bool((tr.xy[:, 0] < x0).any() or (tr.xy[:, 0] > x1).any() or (tr.xy[:, 1] < y0).any() or (tr.xy[:, 1] > y1).any())
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
     if trs:
         first = next(iter(trs.values()))
         ax.plot(first.xy[0, 0], first.xy[0, 1], "o", color="black", mfc="none", ms=8, label="start")
-        ax.legend(loc="best", fontsize=9, framealpha=0.85)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=9)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     if title:
         ax.set_title(title)
-    return fig_to_data_uri(fig)
+    return fig_to_data_uri(fig), clipped
 
 
 def step_times(steps) -> np.ndarray:
@@ -166,51 +186,63 @@ def step_times(steps) -> np.ndarray:
 
 
 def neff_plot(steps, particles: int | None, threshold: float | None) -> str:
-    """N_eff per step over time, resampling events as ticks, and the resampling threshold."""
-    fig, ax = plt.subplots(figsize=(9.0, 3.2))
+    """N_eff per step over time, the resampling threshold, and the resampling events as a
+    thin strip of ticks below (readable whether the filter resampled 3 or 3000 times)."""
+    fig, (ax, strip) = plt.subplots(2, 1, figsize=(13.0, 3.6), sharex=True, gridspec_kw={"height_ratios": [1, 0.14], "hspace": 0.08})
     t = step_times(steps)
-    ax.plot(t, steps["neff"].to_numpy(dtype=float), lw=0.9, color="#1f77b4", label="N_eff")
-    if "resampled" in steps:
-        mask = steps["resampled"].astype(bool).to_numpy()
-        if mask.any():
-            ax.plot(t[mask], steps["neff"].to_numpy(dtype=float)[mask], "v", ms=4, color="#ff7f0e",
-                    label=f"resampled ({int(mask.sum())}x)")
+    ax.plot(t, steps["neff"].to_numpy(dtype=float), lw=0.8, color="#1f77b4", label="N_eff")
     if threshold is not None:
         ax.axhline(threshold, color="#d62728", ls="--", lw=1.0, label=f"threshold {threshold:g}")
     if particles:
         ax.axhline(particles, color="grey", ls=":", lw=0.8, label=f"N = {particles}")
         ax.set_ylim(0, particles * 1.05)
-    ax.set_xlabel("time since first step (s)")
     ax.set_ylabel("N_eff")
-    ax.legend(loc="lower right", fontsize=8, ncol=4, framealpha=0.85)
     ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
+    mask = steps["resampled"].astype(bool).to_numpy() if "resampled" in steps else np.zeros(len(t), bool)
+    if mask.any():
+        strip.eventplot(t[mask], colors="#ff7f0e", linelengths=0.8, linewidths=0.6)
+    strip.set_yticks([])
+    strip.set_ylabel("resampled", rotation=0, ha="right", va="center", fontsize=8)
+    strip.text(1.005, 0.5, f"{int(mask.sum())} of {len(t)} steps ({100.0 * mask.mean() if len(t) else 0:.0f} %)",
+               transform=strip.transAxes, fontsize=8, va="center")
+    strip.set_xlabel("time since first step (s)")
     return fig_to_data_uri(fig)
 
 
 def weight_and_time_plot(steps) -> str:
-    """Best particle weight and filter step time over time, stacked with a shared time axis."""
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9.0, 4.6), sharex=True)
+    """Best particle weight and filter step time over time, stacked with a shared time axis.
+    Step times on a log axis: the first step (JIT compilation, ~0.5 s) would otherwise flatten
+    the typical few-ms step into a line at zero."""
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(13.0, 4.6), sharex=True)
     t = step_times(steps)
     if "best_weight" in steps:
-        a1.plot(t, steps["best_weight"].to_numpy(dtype=float), lw=0.9, color="#9467bd")
+        a1.plot(t, steps["best_weight"].to_numpy(dtype=float), lw=0.8, color="#9467bd")
     a1.set_ylabel("best weight")
     a1.grid(alpha=0.3)
     if "step_time_s" in steps:
         st = steps["step_time_s"].to_numpy(dtype=float) * 1000.0
-        a2.plot(t, st, lw=0.7, color="#8c564b")
+        st_pos = np.maximum(st, 1e-3)  # a log axis cannot show 0 ms
+        a2.plot(t, st_pos, lw=0.5, color="#8c564b", alpha=0.8)
         if st.size:
-            a2.axhline(float(np.median(st)), color="black", ls=":", lw=0.8, label=f"median {np.median(st):.1f} ms")
-            a2.legend(loc="upper right", fontsize=8)
-    a2.set_ylabel("step time (ms)")
+            med, p99 = float(np.median(st)), float(np.percentile(st, 99))
+            a2.axhline(med, color="black", ls=":", lw=0.9, label=f"median {med:.1f} ms")
+            a2.axhline(p99, color="#d62728", ls="--", lw=0.8, label=f"99th percentile {p99:.1f} ms")
+            worst = int(np.argmax(st))
+            a2.plot(t[worst], st_pos[worst], "o", mfc="none", color="#d62728", ms=7, label=f"slowest {st[worst]:.0f} ms")
+            a2.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
+        a2.set_yscale("log")
+    a2.set_ylabel("step time (ms, log)")
     a2.set_xlabel("time since first step (s)")
-    a2.grid(alpha=0.3)
+    a2.grid(alpha=0.3, which="both")
+    fig.tight_layout()
     return fig_to_data_uri(fig)
 
 
 def consistency_plot(series) -> str:
     """Per-scan hit fraction of the consistency replay over time, with a rolling median:
     a drop marks where the map broke (slamlab.eval.consistency)."""
-    fig, ax = plt.subplots(figsize=(9.0, 2.8))
+    fig, ax = plt.subplots(figsize=(13.0, 2.8))
     t = step_times(series)
     y = series["hit_fraction"].to_numpy(dtype=float)
     ax.plot(t, y, lw=0.5, color="#7f7f7f", alpha=0.6, label="per scan")
@@ -222,7 +254,7 @@ def consistency_plot(series) -> str:
     ax.set_ylabel("scan hits on map")
     ax.set_xlabel("time since first scan (s)")
     ax.grid(alpha=0.3)
-    ax.legend(loc="lower left", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
     return fig_to_data_uri(fig)
 
 

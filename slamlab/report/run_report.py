@@ -14,13 +14,18 @@ from typing import Any
 import pandas as pd
 import yaml
 
-from slamlab.report import figures, particle_sections
+from slamlab.report import error_figures, figures, particle_sections
+from slamlab.report.ground_frames import ground_frames_section
+from slamlab.report.replay_section import replay_section
 from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
-from slamlab.report.rundir import REPORT_FILE, TEXTURE_FILES, RunDir, flatten, load_run
+from slamlab.report.rundir import RELATIONS_FILE, REPORT_FILE, TRUTH_TEXTURE_FILE, RunDir, flatten, load_run
 
 # Names the resampling threshold may have in the resampler config group, tried in order.
 # Values <= 1 are a fraction of the particle count (the usual N_eff < N/2 rule).
 _THRESHOLD_KEYS = ("threshold", "neff_threshold", "ess_threshold", "neff_ratio", "threshold_ratio", "min_neff_ratio")
+
+
+TEXTURE_MIN_PX = 420  # texture images smaller than this are shown enlarged by a whole factor
 
 
 def neff_threshold(config: dict[str, Any], particles: int | None) -> tuple[float | None, str]:
@@ -83,10 +88,23 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
     if "rmse_m" in traj:
         out.append(("ATE RMSE (m)", fmt_number(traj["rmse_m"])))
     if "odometry_rmse_m" in traj:
-        out.append(("odometry RMSE (m)", fmt_number(traj["odometry_rmse_m"])))
+        out.append(("odometry RMSE (m), the baseline", fmt_number(traj["odometry_rmse_m"])))
+    if "rot_rmse_deg" in traj:
+        out.append(("heading RMSE (°)", fmt_number(traj["rot_rmse_deg"])))
     rel = m.get("relations") if isinstance(m.get("relations"), dict) else {}
     if "trans_abs_mean_m" in rel:
         out.append(("rel. translation error (m)", fmt_number(rel["trans_abs_mean_m"])))
+    if "rot_abs_mean_deg" in rel:
+        out.append(("rel. rotation error (°)", fmt_number(rel["rot_abs_mean_deg"])))
+    odo_rel = rel.get("odometry") if isinstance(rel.get("odometry"), dict) else {}
+    if "trans_abs_mean_m" in odo_rel:
+        out.append(("odometry rel. error, the baseline (m / °)",
+                    f"{fmt_number(odo_rel['trans_abs_mean_m'])} / {fmt_number(odo_rel.get('rot_abs_mean_deg'))}"))
+    tex = m.get("texture") if isinstance(m.get("texture"), dict) else {}
+    if "colour_error" in tex:
+        odo_tex = tex.get("odometry") if isinstance(tex.get("odometry"), dict) else {}
+        out.append(("texture colour error, SLAM / odometry (0-255)",
+                    f"{fmt_number(tex['colour_error'])} / {fmt_number(odo_tex.get('colour_error'))}"))
     cons = m.get("consistency") if isinstance(m.get("consistency"), dict) else {}
     if "hit_fraction_mean" in cons:
         out.append(("scan hits on map / wall conflicts", f"{fmt_number(cons['hit_fraction_mean'])} / {fmt_number(cons.get('conflict_fraction', float('nan')))}"))
@@ -102,6 +120,23 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
     if "map_mb" in mem:
         out.append(("map MB (end / peak)", f"{fmt_number(mem['map_mb'])} / {fmt_number(mem.get('map_peak_mb', float('nan')))}"))
     return out
+
+
+def _error_over_time(run: RunDir, trajs: dict[str, Any]) -> tuple[str | None, str]:
+    """ATE versus time (ground truth known) or relation error versus time (relations.csv)."""
+    gt = trajs.get("groundtruth")
+    if gt is not None and len(gt) > 1 and (trajs.get("slam") is not None or trajs.get("odometry") is not None):
+        img = error_figures.ate_over_time(gt, {k: trajs[k] for k in ("odometry", "slam") if trajs.get(k) is not None})
+        return img, ("Distance from the true pose at every scan (top) and heading error (bottom), no alignment:"
+                     " a rise marks where the estimate drifted, a drop where it recovered (e.g. a loop closed).")
+    p = run.file(RELATIONS_FILE)
+    if p is not None:
+        table = pd.read_csv(p)
+        if len(table):
+            return error_figures.relation_error_over_time(table), (
+                f"{len(table)} benchmark relations (relations.csv), each plotted at its start time: the error of the"
+                " estimated motion between two scans against the reference. Points per relation, lines a rolling median.")
+    return None, ""
 
 
 def rerun_commands(run: RunDir) -> tuple[str, str | None]:
@@ -131,30 +166,38 @@ def render_run_report(run: RunDir) -> str:
     map_img = None
     map_note = ""
     if m is not None or any(v is not None for v in trajs.values()):
-        map_img = figures.map_with_trajectories(m, trajs)
+        map_img, odo_clipped = figures.map_with_trajectories(m, trajs)
         shown = [figures.KIND_STYLE[k]["label"] for k in ("slam", "odometry", "groundtruth") if trajs[k] is not None]
         missing = [figures.KIND_STYLE[k]["label"] for k in ("groundtruth",) if trajs[k] is None]
         map_note = (
-            "Occupancy map (white free, black occupied, grey unknown), cropped to the explored area"
-            + (f", {m.data.shape[1]}×{m.data.shape[0]} cells of {m.resolution_m:g} m" if m is not None else "")
+            "Occupancy map (white free, black occupied, grey unknown)"
+            + (f" of {m.data.shape[1]}×{m.data.shape[0]} cells of {m.resolution_m:g} m, shown cropped to the mapped area"
+               " and the estimated path" if m is not None else "")
             + ". Paths: " + ", ".join(shown) + "; ○ start, ■ end."
+            + (" The odometry leaves this window (it drifts): it is clipped at the edge." if odo_clipped else "")
             + (" No ground truth for this dataset." if missing else "")
             + (" Dead reckoning: the estimate is the odometry, and the map is built along it." if mode == "odometry" else "")
             + (" Prediction only: the map is built along particle 0's path (no particle is better than another);"
                " every particle's path is drawn below." if mode == "predict" else "")
         )
 
+    error_img, error_note = _error_over_time(run, trajs)
     textures = []
     captions = {
-        "texture.png": "Floor texture from RGB-D along the SLAM trajectory (cropped to the textured area)",
-        "texture_over_map.png": "SLAM texture over the occupancy map",
+        "texture.png": "Floor texture from RGB-D along the SLAM trajectory",
+        TRUTH_TEXTURE_FILE: "The true floor texture (simulated), on the cells the SLAM texture covers",
         "texture_odometry.png": "Texture along the odometry trajectory (for comparison)",
+        "texture_over_map.png": "SLAM texture over the occupancy map",
         "texture_odometry_over_map.png": "Odometry texture over the occupancy map",
     }
-    for name in TEXTURE_FILES:
+    for name in captions:
         p = run.file(name)
         if p is not None:
-            textures.append({"caption": captions[name], "uri": figures.png_file_to_data_uri(p)})
+            # native resolution (cropped to the textured area): one image pixel per map cell
+            uri = figures.png_file_to_data_uri(p, max_px=4000, min_px=0)
+            w, h = figures.png_size(uri)
+            # shown enlarged by a whole factor to >= ~420 px (cells stay square and crisp)
+            textures.append({"caption": captions[name], "uri": uri, "width": w * max(1, TEXTURE_MIN_PX // max(w, h, 1))})
 
     steps = run.load_steps()
     neff_img = weight_img = None
@@ -166,9 +209,8 @@ def render_run_report(run: RunDir) -> str:
         weight_img = figures.weight_and_time_plot(steps)
         n_res = int(steps["resampled"].astype(bool).sum()) if "resampled" in steps else 0
         neff_note = (
-            f"{len(steps)} filter steps; resampled {n_res} times (▼). Dashed red line: resampling threshold"
-            f" ({thr_src})." if thr is not None else
-            f"{len(steps)} filter steps; resampled {n_res} times (▼). No threshold line: {thr_src}."
+            f"{len(steps)} filter steps; resampled {n_res} times (orange ticks in the strip below the curve)."
+            + (f" Dashed red line: resampling threshold ({thr_src})." if thr is not None else f" No threshold line: {thr_src}.")
         )
 
     consistency_img = None
@@ -226,6 +268,10 @@ def render_run_report(run: RunDir) -> str:
         single_step=steps is not None and len(steps) == 1,
         weight_img=weight_img,
         consistency_img=consistency_img,
+        error_img=error_img,
+        error_note=error_note,
+        replay=replay_section(run),
+        ground_frames=ground_frames_section(run),
         first_scan=particle_sections.first_scan_section(run),
         predict=particle_sections.predict_section(run),
         weights=particle_sections.weights_section(run),

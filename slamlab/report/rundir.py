@@ -36,6 +36,10 @@ GROUNDTRUTH_FILE = "groundtruth.tum"
 PARTICLES_FILE = "particles.npz"  # record.particles
 FIRST_SCAN_FILE = "first_scan.npz"  # record.first_scan
 # Pairs (SLAM, odometry) so the page shows them side by side.
+TRUTH_TEXTURE_FILE = "texture_truth.png"  # simulated data: the true floor on the textured cells
+RELATIONS_FILE = "relations.csv"  # logs with benchmark relations: error per relation
+GROUND_FRAMES_FILE = "ground_frames.npz"
+REPLAY_FILE = "replay.npz"  # record.replay: snapshots for the replay  # RGB-D runs: sample frames of ground detection
 TEXTURE_FILES = ("texture.png", "texture_odometry.png", "texture_over_map.png", "texture_odometry_over_map.png")
 LOG_FILE = "slamlab.log"
 ERROR_FILE = "error.txt"

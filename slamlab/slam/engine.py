@@ -46,6 +46,7 @@ from slamlab.slam.filters import FilterKind, SharedMapFilter
 from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import Matcher
 from slamlab.slam.motion import MotionModel
+from slamlab.slam.replay import ReplayRecorder, snapshot_steps
 from slamlab.slam.resample import Resampler
 from slamlab.slam.result import ParticleHistory, SlamResult
 from slamlab.slam.scan import points_to_world, range_limits, scan_to_points
@@ -81,6 +82,7 @@ class Components:
     map: MapSettings
     filter: FilterKind
     record_particles: bool
+    record_replay: bool
 
 
 def build_component(cfg: DictConfig, group: str, base: type) -> object:
@@ -134,6 +136,9 @@ def validate_config(cfg: DictConfig) -> Components:
         raise ConfigError("record.particles", f"must be auto, true or false, got {record!r}")
     if record == "auto":
         record = mode == "predict" or (mode == "slam" and particles <= RECORD_AUTO_MAX_PARTICLES)  # type: ignore[operator]
+    replay = OmegaConf.select(cfg, "record.replay", default=True)
+    if not isinstance(replay, bool):
+        raise ConfigError("record.replay", f"must be true or false, got {replay!r}")
     skip = OmegaConf.select(cfg, "steps.skip_static_start", default=True)
     if not isinstance(skip, bool):
         raise ConfigError("steps.skip_static_start", f"must be true or false, got {skip!r}")
@@ -155,6 +160,7 @@ def validate_config(cfg: DictConfig) -> Components:
         # configs saved before the filter group existed ran the course filter
         filter=build_component(cfg, "filter", FilterKind) if OmegaConf.select(cfg, "filter") is not None else SharedMapFilter(),  # type: ignore[arg-type]
         record_particles=bool(record),
+        record_replay=replay,
     )
 
 
@@ -212,6 +218,7 @@ def run_slam(
     hist_parent = np.empty((n_steps, n), dtype=np.int32)
     hist_w = np.empty((n_steps, n)) if c.record_particles else None
     parent = np.arange(n, dtype=np.int32)
+    replay = ReplayRecorder(snapshot_steps(n_steps)) if c.record_replay else None
     causal = np.empty((n_steps, 3))
     rows: dict[str, list] = {k: [] for k in ("neff", "resampled", "best_weight", "step_time_s")}
     resample_count = 0
@@ -241,6 +248,8 @@ def run_slam(
         if k == 0:  # the first map is this scan alone, seen from the start pose
             first_scan = (points_to_world(pts.xy, poses[best]), points_to_world(pts.origin.reshape(1, 2), poses[best])[0])
         maps.update(poses, pts, best)
+        if replay is not None and replay.wants(k):
+            replay.add(k, poses, best, points_to_world(pts.xy, poses[best]), maps.image(best))
         if k == n_steps - 1:
             final_map = maps.image(best)  # before a resample renumbers the particles' maps
         neff = effective_sample_size(w)
@@ -301,6 +310,7 @@ def run_slam(
         particle_history=None if hist_w is None else ParticleHistory(hist_poses, hist_w, hist_parent, steps["resampled"].to_numpy(bool)),
         first_scan_xy=first_scan[0],
         first_scan_origin=first_scan[1],
+        replay=None if replay is None else replay.arrays(),
         extras={
             "mode": c.mode,
             "processed_steps": n_steps,

@@ -49,6 +49,7 @@ class SlamResult:
     - `particle_history`: every particle's pose and weight per step, or None (not recorded).
     - `first_scan_xy` (M, 2): the first processed scan's points in the world frame (m), as
       inserted into the first map; `first_scan_origin` (2,) the lidar's position then.
+    - `replay`: ~100 snapshots of the filter for the report's replay (`slam.replay`), or None.
     """
 
     times: FloatArray
@@ -65,3 +66,4 @@ class SlamResult:
     particle_history: ParticleHistory | None = None
     first_scan_xy: FloatArray | None = None
     first_scan_origin: FloatArray | None = None
+    replay: dict | None = None

@@ -40,6 +40,7 @@ from slamlab import geometry
 from slamlab.texture.align import sample_colors, unmirror_calibration
 from slamlab.texture.backproject import Backprojector, scaled_intrinsics
 from slamlab.texture.ground import GroundDetector, GroundQuery
+from slamlab.texture.samples import FrameSample, sample_frame, sample_ordinals
 from slamlab.texture.texture_map import TextureAccumulator
 
 __all__ = [
@@ -87,7 +88,8 @@ class TextureResult:
       `detect_time_s` (F,): the detector's part of it;
     - `points_added`: floor points averaged into cells; `points_outside_grid`, `points_rejected`;
     - `detection`: {detector name: DetectionCounts} on frames with ground labels (may be empty);
-    - `messages`: human-readable notes (e.g. a reader error that stopped the stream).
+    - `messages`: human-readable notes (e.g. a reader error that stopped the stream);
+    - `samples`: the frames kept for the report when `run_texture(sample_frames=k)` (`samples.py`).
     """
 
     color: np.ndarray
@@ -108,6 +110,7 @@ class TextureResult:
     points_rejected: int = 0
     detection: dict[str, DetectionCounts] = field(default_factory=dict)
     messages: list[str] = field(default_factory=list)
+    samples: list[FrameSample] = field(default_factory=list)
 
     @property
     def covered(self) -> np.ndarray:
@@ -238,6 +241,7 @@ def run_texture(
     ground_cfg: DictConfig,
     texture_cfg: DictConfig,
     progress: Callable[[int, int], None] | None = None,
+    sample_frames: int = 0,
 ) -> TextureResult:
     """Colour the floor cells of `grid` from the sequence's RGB-D frames placed with `poses`.
 
@@ -245,7 +249,9 @@ def run_texture(
       theta rad; the SLAM estimate or the odometry) - interpolated at each frame's depth time;
     - `grid`: the occupancy map; the texture grid has its shape, resolution and origin;
     - `ground_cfg`: a `ground/` config (detector); `texture_cfg`: a `texture/` config;
-    - `progress(done, total)`: optional, called after each frame (total = sequence.rgbd_count).
+    - `progress(done, total)`: optional, called after each frame (total = sequence.rgbd_count);
+    - `sample_frames`: keep this many used frames spread over the stream for the report
+      (every evaluated detector's floor mask and the registered colour; `samples.py`).
 
     Raises DataError (before any work) if the sequence has no RGB-D, no Kinect calibration or
     no body height, and ConfigError for impossible config values. Never raises for a bad frame.
@@ -304,13 +310,25 @@ def run_texture(
             if str(name) != det_name:
                 compare[str(name)] = _packaged_detector(str(name))
     detection: dict[str, DetectionCounts] = {}
+    total = int(sequence.rgbd_count or 0)
+    # which frames the report sees: labelled ones when there are labels (so precision and
+    # recall can be shown), matched by frame index; otherwise by position in the stream
+    sample_by_index = bool(labels)
+    pool = sorted(labels) if labels else None
+    sample_at = set() if sample_frames <= 0 else (
+        {pool[i] for i in sample_ordinals(len(pool), sample_frames)} if pool else sample_ordinals(total, sample_frames))
+    samples: list[FrameSample] = []
+    sample_detectors: dict[str, GroundDetector] = {}
+    if sample_at:  # the run's detector and every evaluated one, labels or not
+        sample_detectors = {det_name: detector}
+        for name in _cfg(texture_cfg, "evaluate_detectors", []) or []:
+            sample_detectors.setdefault(str(name), compare.get(str(name)) or _packaged_detector(str(name)))
 
     skipped: dict[str, int] = {}
     messages: list[str] = []
     frame_times: list[float] = []
     detect_times: list[float] = []
     frames_total = frames_used = thinned = 0
-    total = int(sequence.rgbd_count or 0)
 
     def skip(reason: str, frame: RGBDFrame | None = None, detail: str = "") -> None:
         skipped[reason] = skipped.get(reason, 0) + 1
@@ -349,6 +367,11 @@ def run_texture(
             # Evaluation-only work (other detectors on labelled frames) is not the mapper's cost.
             frame_times.append(time.perf_counter() - t0 - dt_eval)
             detect_times.append(dt_detect)
+            if (frame.index if sample_by_index else frames_total - 1) in sample_at:  # after the timing: the report's cost, not the mapper's
+                kept = sample_frame(frame, calib, backproject, _camera_to_world(frame, track, float(sequence.body_height_m)),
+                                    sample_detectors, labels.get(frame.index) if labels else None, distort_rgb)
+                if kept is not None:
+                    samples.append(kept)
 
     if frames_total == 0:
         messages.append("the RGB-D stream was empty")
@@ -377,7 +400,15 @@ def run_texture(
         points_rejected=acc.points_rejected,
         detection=detection,
         messages=messages,
+        samples=samples,
     )
+
+
+def _camera_to_world(frame: RGBDFrame, track: PoseTrack, body_height_m: float) -> np.ndarray:
+    """4x4 pose of the IR optical frame in the world at the frame's depth time."""
+    pose, _ = track(frame.t)
+    T_wb = body_to_world(pose, body_height_m, frame.roll, frame.pitch)
+    return T_wb @ np.asarray(frame.camera_to_body, dtype=np.float64).reshape(4, 4)
 
 
 def _process_frame(
@@ -410,8 +441,7 @@ def _process_frame(
     if gap > max_gap:
         skip("outside_trajectory", frame, f"t={frame.t:.3f} is {gap:.2f} s outside the trajectory")
         return False, 0.0, 0.0
-    T_wb = body_to_world(pose, float(sequence.body_height_m), frame.roll, frame.pitch)
-    T_wc = T_wb @ np.asarray(frame.camera_to_body, dtype=np.float64).reshape(4, 4)
+    T_wc = _camera_to_world(frame, track, float(sequence.body_height_m))
     query = GroundQuery(pts, T_wc, scaled_intrinsics(calib.ir, depth.shape[1], depth.shape[0]))
 
     t0 = time.perf_counter()
@@ -476,6 +506,19 @@ def texture_over_map_image(result: TextureResult, occupancy_prob: np.ndarray) ->
     img = np.repeat(grey[..., None], 3, axis=2)
     img[result.covered] = result.color[result.covered]
     return np.flipud(img)
+
+
+def save_truth_texture(result: TextureResult, floor_texture: GridImage, path: Path) -> None:
+    """The true floor colour (simulated data) on `result`'s grid, shown only on the cells the
+    texture covers, as RGBA like texture.png: the two images compare cell for cell."""
+    from slamlab.eval.texture import resample_to_grid
+
+    colour, has = resample_to_grid(floor_texture, result.count.shape, result.resolution_m, result.origin_xy)
+    rgba = np.zeros(result.count.shape + (4,), dtype=np.uint8)
+    shown = has & result.covered
+    rgba[shown, :3] = np.clip(np.rint(colour[shown]), 0, 255).astype(np.uint8)  # hidden cells all 0, as in texture.png
+    rgba[..., 3] = np.where(shown, 255, 0)
+    _write_png(path, np.flipud(rgba))
 
 
 def save_texture_outputs(

@@ -1,0 +1,69 @@
+"""Error over time for the run report: where a run went wrong, not only how much.
+
+- `ate_over_time`: per-pose distance to ground truth (simulated data), SLAM and odometry;
+- `relation_error_over_time`: per-relation errors (relations.csv, CARMEN/rosbag logs with a
+  `.relations` file) against the relation's start time, SLAM and odometry, with the
+  rotation error on a second panel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from slamlab.report.figures import KIND_STYLE, fig_to_data_uri, plt
+from slamlab.report.error_series import pose_errors
+from slamlab.report.rundir import Trajectory
+
+
+def ate_over_time(truth: Trajectory, estimates: dict[str, Trajectory | None]) -> str:
+    """Translation and heading error versus time since the first scan, one line per
+    estimate (keys of KIND_STYLE: "slam", "odometry")."""
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(13.0, 4.6), sharex=True)
+    t = truth.t - truth.t[0]
+    for kind, est in estimates.items():
+        if est is None:
+            continue
+        d, r = pose_errors(est, truth)
+        style = KIND_STYLE[kind]
+        a1.plot(t[: len(d)], d, color=style["color"], lw=1.0, ls=style.get("ls", "-"),
+                label=f"{style['label']} (RMSE {np.sqrt(np.mean(d**2)):.3f} m)")
+        a2.plot(t[: len(r)], r, color=style["color"], lw=0.8, ls=style.get("ls", "-"))
+    a1.set_ylabel("position error (m)")
+    a2.set_ylabel("heading error (°)")
+    a2.set_xlabel("time since first scan (s)")
+    for a in (a1, a2):
+        a.grid(alpha=0.3)
+        a.set_ylim(bottom=0)
+    a1.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
+    fig.tight_layout()
+    return fig_to_data_uri(fig)
+
+
+def relation_error_over_time(table: pd.DataFrame) -> str:
+    """Per-relation translation and rotation error versus the relation's start time:
+    points per relation and a rolling median, for SLAM and odometry."""
+    table = table.sort_values("t1")
+    t = table["t1"].to_numpy(float) - float(table["t1"].min())
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(13.0, 4.6), sharex=True)
+    win = max(5, len(table) // 15)  # relations are noisy: smooth over several
+    for kind in ("odometry", "slam"):
+        if f"{kind}_trans_m" not in table:
+            continue
+        style = KIND_STYLE[kind]
+        trans, rot = table[f"{kind}_trans_m"].to_numpy(float), table[f"{kind}_rot_deg"].to_numpy(float)
+        label = f"{style['label']}: mean {np.mean(trans):.3g} m / {np.mean(rot):.3g}°"
+        for ax, y, lab in ((a1, trans, label), (a2, rot, None)):
+            ax.scatter(t, y, s=6, color=style["color"], alpha=0.35, lw=0)
+            smooth = pd.Series(y).rolling(win, center=True, min_periods=1).median().to_numpy()
+            ax.plot(t, smooth, color=style["color"], lw=1.3, label=lab)
+    a1.set_ylabel("translation error (m)")
+    a2.set_ylabel("rotation error (°)")
+    a2.set_xlabel("start of the relation, time since the first one (s)")
+    for a in (a1, a2):
+        a.grid(alpha=0.3)
+        a.set_ylim(bottom=0)
+    a1.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
+    a2.text(1.005, 0.95, f"lines: rolling median\nof {win} relations", transform=a2.transAxes, fontsize=8, va="top")
+    fig.tight_layout()
+    return fig_to_data_uri(fig)
