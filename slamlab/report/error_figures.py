@@ -29,15 +29,7 @@ def ate_over_time(truth: Trajectory, estimates: dict[str, Trajectory | None]) ->
         a1.plot(t[: len(d)], d, color=style["color"], lw=1.0, ls=style.get("ls", "-"),
                 label=f"{style['label']} (RMSE {np.sqrt(np.mean(d**2)):.3f} m)")
         a2.plot(t[: len(r)], r, color=style["color"], lw=0.8, ls=style.get("ls", "-"))
-    a1.set_ylabel("position error (m)")
-    a2.set_ylabel("heading error (°)")
-    a2.set_xlabel("time since first scan (s)")
-    for a in (a1, a2):
-        a.grid(alpha=0.3)
-        a.set_ylim(bottom=0)
-    a1.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
-    fig.tight_layout()
-    return fig_to_data_uri(fig)
+    return _finish(fig, a1, a2, "position error (m)", "heading error (°)", "time since first scan (s)")
 
 
 def relation_error_over_time(table: pd.DataFrame) -> str:
@@ -57,13 +49,18 @@ def relation_error_over_time(table: pd.DataFrame) -> str:
             ax.scatter(t, y, s=6, color=style["color"], alpha=0.35, lw=0)
             smooth = pd.Series(y).rolling(win, center=True, min_periods=1).median().to_numpy()
             ax.plot(t, smooth, color=style["color"], lw=1.3, label=lab)
-    a1.set_ylabel("translation error (m)")
-    a2.set_ylabel("rotation error (°)")
-    a2.set_xlabel("start of the relation, time since the first one (s)")
+    a2.text(1.005, 0.95, f"lines: rolling median\nof {win} relations", transform=a2.transAxes, fontsize=8, va="top")
+    return _finish(fig, a1, a2, "translation error (m)", "rotation error (°)", "start of the relation, time since the first one (s)")
+
+
+def _finish(fig, a1, a2, y1: str, y2: str, xlabel: str) -> str:
+    """Labels, grid, errors from 0 and the legend outside the data, for both error figures."""
+    a1.set_ylabel(y1)
+    a2.set_ylabel(y2)
+    a2.set_xlabel(xlabel)
     for a in (a1, a2):
         a.grid(alpha=0.3)
         a.set_ylim(bottom=0)
     a1.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
-    a2.text(1.005, 0.95, f"lines: rolling median\nof {win} relations", transform=a2.transAxes, fontsize=8, va="top")
     fig.tight_layout()
     return fig_to_data_uri(fig)
