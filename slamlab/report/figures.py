@@ -258,27 +258,6 @@ def consistency_plot(series) -> str:
     return fig_to_data_uri(fig)
 
 
-def map_grid(items: Sequence[tuple[str, LogOddsMap | None, Trajectory | None]], max_px: int = 220) -> str:
-    """Small multiples: each run's map with its SLAM path, titled by run label."""
-    n = len(items)
-    ncols = min(4, n)
-    nrows = int(math.ceil(n / ncols))
-    fig, axes = plt.subplots(nrows, ncols, figsize=(3.2 * ncols, 3.1 * nrows), squeeze=False)
-    for ax, (label, m, tr) in zip(axes.flat, items):
-        if m is None:
-            ax.text(0.5, 0.5, "no map", ha="center", va="center", transform=ax.transAxes)
-        else:
-            draw_map(ax, prepare_map(m, max_px, [tr] if tr is not None else []))
-        if tr is not None and len(tr):
-            ax.plot(tr.xy[:, 0], tr.xy[:, 1], color=KIND_STYLE["slam"]["color"], lw=0.9)
-        ax.set_title(label, fontsize=9)
-        ax.tick_params(labelsize=7)
-    for ax in list(axes.flat)[n:]:
-        ax.axis("off")
-    fig.tight_layout()
-    return fig_to_data_uri(fig)
-
-
 def trajectories_overlay(
     background: LogOddsMap | None,
     background_label: str,

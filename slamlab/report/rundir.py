@@ -40,7 +40,6 @@ TRUTH_TEXTURE_FILE = "texture_truth.png"  # simulated data: the true floor on th
 RELATIONS_FILE = "relations.csv"  # logs with benchmark relations: error per relation
 GROUND_FRAMES_FILE = "ground_frames.npz"
 REPLAY_FILE = "replay.npz"  # record.replay: snapshots for the replay  # RGB-D runs: sample frames of ground detection
-TEXTURE_FILES = ("texture.png", "texture_odometry.png", "texture_over_map.png", "texture_odometry_over_map.png")
 LOG_FILE = "slamlab.log"
 ERROR_FILE = "error.txt"
 REPORT_FILE = "report.html"
