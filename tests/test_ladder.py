@@ -96,6 +96,7 @@ def test_first_scan_map_holds_exactly_that_scans_hits_and_free_cells(tmp_path, s
     page = (run_dir / "report.html").read_text()
     assert 'id="first-scan"' in page and f"{len(pts)} points" in page and "holds this scan only" in page
     assert "a single filter step: nothing to plot over time" in page and "N_eff over time" not in page
+    assert "none (the first scan only)" in page and "dead reckoning" not in page.split('id="first-scan"')[0]
 
 
 # ---------------------------------------------------------------- step 3: prediction only

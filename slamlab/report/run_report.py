@@ -78,7 +78,10 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
     """A handful of headline numbers, the ones people compare first."""
     m = run.metrics
     out: list[tuple[str, str]] = []
-    if m.get("mode") == "odometry":
+    steps_cfg = run.config.get("steps") if isinstance(run.config, dict) else None
+    if isinstance(steps_cfg, dict) and steps_cfg.get("max_steps") == 1:
+        out.append(("filter", "none (the first scan only)"))
+    elif m.get("mode") == "odometry":
         out.append(("filter", "none (dead reckoning)"))
     elif m.get("mode") == "predict":
         out.append(("filter", f"prediction only, {m.get('particles', '?')} particles"))
