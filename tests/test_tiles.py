@@ -159,3 +159,37 @@ def test_growing_keeps_every_value_and_crops_the_image():
     H0, W0 = table_shape0
     assert field0.max() > 0
     assert np.array_equal(maps.dense(0, "field")[oy:oy + H0, ox:ox + W0], field0)
+
+
+def _corridor_scan(half_width_m: float = 1.5, reach_m: float = 4.0, m: int = 120) -> tuple[np.ndarray, np.ndarray]:
+    """Beams onto the two walls of a straight corridor along the body's x axis."""
+    x = np.linspace(-reach_m, reach_m, m // 2)
+    pts = np.concatenate([np.stack([x, np.full_like(x, half_width_m)], 1), np.stack([x, np.full_like(x, -half_width_m)], 1)])
+    return pts, np.zeros(2)
+
+
+def test_memory_of_a_long_diagonal_walk_grows_with_the_distance_not_the_area():
+    """A walk along a diagonal corridor: a dense grid would grow with the bounding box
+    (distance squared), the tiles only where scans land (distance)."""
+    pts, origin = _corridor_scan()
+    settings = MapSettings(resolution_m=RES, initial_size_m=12.8, growth_margin_m=2.0)
+    maps = TiledMaps(settings, 2, field_sigma_m=0.1, field_radius_m=0.3)
+    heading = np.pi / 4
+    tiles_at: dict[int, int] = {}
+    for k in range(0, 801):  # 0.1 m steps: 80 m
+        d = 0.1 * k
+        pose = np.array([d * np.cos(heading), d * np.sin(heading), heading])
+        maps.insert_scan(np.tile(pose, (2, 1)), pts, origin)
+        if k in (200, 400, 800):
+            tiles_at[k // 10] = maps.tiles_in_use
+    # each 20 m of corridor adds the same band of tiles: linear in the distance (the ends of
+    # the first scan add a constant), where the bounding box would grow 4x per doubling
+    per_20m_a = tiles_at[40] - tiles_at[20]
+    per_20m_b = (tiles_at[80] - tiles_at[40]) / 2
+    assert 0.85 < per_20m_b / per_20m_a < 1.15
+    # the table (tile slots of the bounding box) grew with the area, 4x per doubling; the MB
+    # held stays with the tiles in use
+    H, W = maps.shape
+    box_tiles = (H // TILE) * (W // TILE)
+    assert box_tiles > 8 * tiles_at[80] / 2  # per particle, the box dwarfs the band
+    assert maps.memory_mb() < 2.0 * tiles_at[80] * maps.bytes_per_tile() / 1e6 + maps.table.nbytes / 1e6
