@@ -22,7 +22,7 @@ SAMPLE_S = 0.005
 
 
 def _status_mb(field: str) -> float:
-    """A `VmXXX:  N kB` line of /proc/self/status, in MB."""
+    """The value of one `Name:  N kB` line of /proc/self/status (e.g. VmRSS, VmHWM), in MB."""
     m = re.search(rf"^{field}:\s+(\d+) kB", STATUS.read_text(), re.MULTILINE)
     return int(m.group(1)) / 1024.0 if m else float("nan")
 

@@ -55,6 +55,19 @@ def _trapezoid(n: int, dt: float, peak: float) -> FloatArray:
     return peak * np.clip(np.minimum(tt, total - tt) / ramp, 0.0, 1.0)
 
 
+def _move(out: FloatArray, i: int, amount: float, peak: float) -> int:
+    """Write into `out` from sample `i` a trapezoid profile (ramps of RAMP_S, then `peak`)
+    that covers `amount` exactly (m at peak m/s, or rad at peak rad/s; negative = backwards),
+    cut at the end of `out`. Returns the sample after the move (may be past the end)."""
+    # amount = peak * (T - ramp) for a trapezoid, so T = |amount| / peak + ramp
+    n = int(round((abs(amount) / peak + RAMP_S) / FINE_DT_S))
+    seg = _trapezoid(n, FINE_DT_S, peak)
+    seg *= amount / (seg.sum() * FINE_DT_S)  # exact amount despite rounding
+    m = min(n, len(out) - i)
+    out[i : i + m] = seg[:m]
+    return i + n
+
+
 def route_commands(duration_s: float, loop_min: tuple[float, float], loop_max: tuple[float, float],
                    start_xy: tuple[float, float], walk_speed_mps: float, turn_rate_rps: float,
                    stand_s: float) -> tuple[FloatArray, FloatArray]:
@@ -73,22 +86,10 @@ def route_commands(duration_s: float, loop_min: tuple[float, float], loop_max: t
     k = 0
     while i < n_total:
         dist = legs[0] if k == 0 else pattern[(k - 1) % 4]
-        # distance = peak * (T - ramp) for a trapezoid, so T = dist / v + ramp
-        n = int(round((dist / walk_speed_mps + RAMP_S) / FINE_DT_S))
-        seg = _trapezoid(n, FINE_DT_S, walk_speed_mps)
-        seg *= dist / (seg.sum() * FINE_DT_S)  # exact distance despite rounding
-        m = min(n, n_total - i)
-        v[i : i + m] = seg[:m]
-        i += n
+        i = _move(v, i, dist, walk_speed_mps)
         if i >= n_total:
             break
-        angle = np.pi / 2
-        n = int(round((angle / turn_rate_rps + RAMP_S) / FINE_DT_S))
-        seg = _trapezoid(n, FINE_DT_S, turn_rate_rps)
-        seg *= angle / (seg.sum() * FINE_DT_S)
-        m = min(n, n_total - i)
-        w[i : i + m] = seg[:m]
-        i += n
+        i = _move(w, i, np.pi / 2, turn_rate_rps)
         k += 1
     return v, w
 
@@ -119,21 +120,11 @@ def waypoint_commands(duration_s: float, waypoints: FloatArray, walk_speed_mps: 
         if abs(angle) > np.pi - 1e-9:
             angle = np.pi  # U-turn: to the left
         if abs(angle) > 1e-9:
-            n = int(round((abs(angle) / turn_rate_rps + RAMP_S) / FINE_DT_S))
-            seg = _trapezoid(n, FINE_DT_S, turn_rate_rps)
-            seg *= angle / (seg.sum() * FINE_DT_S)  # exact angle despite rounding
-            m = min(n, n_total - i)
-            w[i : i + m] = seg[:m]
-            i += n
+            i = _move(w, i, angle, turn_rate_rps)
             if i >= n_total:
                 break
         heading += angle
-        n = int(round((dist / walk_speed_mps + RAMP_S) / FINE_DT_S))
-        seg = _trapezoid(n, FINE_DT_S, walk_speed_mps)
-        seg *= dist / (seg.sum() * FINE_DT_S)
-        m = min(n, n_total - i)
-        v[i : i + m] = seg[:m]
-        i += n
+        i = _move(v, i, dist, walk_speed_mps)
         k += 1
     return v, w
 

@@ -198,16 +198,8 @@ def build_world(seed: int, n_clutter: int = 22, texture_res_m: float = 0.02, sca
         clutter.append(box)
         kinds.append(1 if pillar else 2)
 
-    boxes = np.array(walls + clutter, dtype=np.float64)
-    kind = np.array([0] * len(walls) + kinds, dtype=np.int8)
-    # Plain colours: walls pale and varied (so texture bleeding is visible), clutter saturated.
-    colors = np.empty((len(boxes), 3), dtype=np.uint8)
-    colors[: len(walls)] = rng.integers(150, 235, size=(len(walls), 3))
-    colors[len(walls) :] = rng.integers(20, 220, size=(len(clutter), 3))
-
     shift = np.array(START_PLAN) * scale
-    boxes[:, [0, 2]] -= shift[0]
-    boxes[:, [1, 3]] -= shift[1]
+    boxes, kind, colors = _coloured_boxes(rng, walls, clutter, kinds, shift)
     floor = floor_texture(rng, W, H, texture_res_m, origin=(-shift[0], -shift[1]))
     return World(
         boxes=boxes,
@@ -218,6 +210,21 @@ def build_world(seed: int, n_clutter: int = 22, texture_res_m: float = 0.02, sca
         loop_min=(lx0 - shift[0], ly0 - shift[1]),
         loop_max=(lx1 - shift[0], ly1 - shift[1]),
     )
+
+
+def _coloured_boxes(rng: np.random.Generator, walls: list[list[float]], clutter: list[list[float]], kinds: list[int],
+                    shift: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The world's boxes (walls then clutter, moved by -`shift` so the robot starts at the
+    origin), their kinds (0 wall, then `kinds`) and plain colours: walls pale and varied (so
+    texture bleeding is visible), clutter saturated."""
+    boxes = np.array(walls + clutter, dtype=np.float64)
+    kind = np.array([0] * len(walls) + kinds, dtype=np.int8)
+    colors = np.empty((len(boxes), 3), dtype=np.uint8)
+    colors[: len(walls)] = rng.integers(150, 235, size=(len(walls), 3))
+    colors[len(walls) :] = rng.integers(20, 220, size=(len(clutter), 3))
+    boxes[:, [0, 2]] -= shift[0]
+    boxes[:, [1, 3]] -= shift[1]
+    return boxes, kind, colors
 
 
 def _segment_distance(box: list[float], seg: tuple[tuple[float, float], tuple[float, float]]) -> float:
@@ -346,15 +353,8 @@ def _build_loops(seed: int, n_clutter: int, texture_res_m: float, scale: float) 
     clear = min(_segment_distance(b, seg) for b in walls + clutter for seg in corridors)
     if clear < LOOPS_CLEAR_M - 1e-9:
         raise AssertionError(f"loops layout: an obstacle stands {clear:.2f} m from the route")
-    boxes = np.array(walls + clutter, dtype=np.float64)
-    kind = np.array([0] * len(walls) + kinds, dtype=np.int8)
-    colors = np.empty((len(boxes), 3), dtype=np.uint8)
-    colors[: len(walls)] = rng.integers(150, 235, size=(len(walls), 3))
-    colors[len(walls) :] = rng.integers(20, 220, size=(len(clutter), 3))
-
     shift = np.array(start)
-    boxes[:, [0, 2]] -= shift[0]
-    boxes[:, [1, 3]] -= shift[1]
+    boxes, kind, colors = _coloured_boxes(rng, walls, clutter, kinds, shift)
     area = W * H / (WORLD_SIZE_PLAN[0] * WORLD_SIZE_PLAN[1])  # discs and stripes as dense as in the ring
     floor = floor_texture(rng, W, H, texture_res_m, origin=(-shift[0], -shift[1]), n_discs=int(round(40 * area)), n_stripes=int(round(12 * np.sqrt(area))))
     sh = (float(shift[0]), float(shift[1]))
