@@ -248,10 +248,14 @@ def run_slam(
         if k == 0:  # the first map is this scan alone, seen from the start pose
             first_scan = (points_to_world(pts.xy, poses[best]), points_to_world(pts.origin.reshape(1, 2), poses[best])[0])
         maps.update(poses, pts, best)
-        if replay is not None and replay.wants(k):
-            replay.add(k, poses, best, points_to_world(pts.xy, poses[best]), maps.image(best))
-        if k == n_steps - 1:
-            final_map = maps.image(best)  # before a resample renumbers the particles' maps
+        last = k == n_steps - 1
+        want_snapshot = replay is not None and replay.wants(k)
+        if last or want_snapshot:  # one image for both: a large RBPF map takes a while to gather
+            image = maps.image(best)
+            if last:
+                final_map = image  # before a resample renumbers the particles' maps
+            if want_snapshot:
+                replay.add(k, poses, best, points_to_world(pts.xy, poses[best]), image)
         neff = effective_sample_size(w)
         resampled = False
         if slam and n > 1 and c.resampler.should_resample(w):
