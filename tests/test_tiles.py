@@ -193,3 +193,33 @@ def test_memory_of_a_long_diagonal_walk_grows_with_the_distance_not_the_area():
     box_tiles = (H // TILE) * (W // TILE)
     assert box_tiles > 8 * tiles_at[80] / 2  # per particle, the box dwarfs the band
     assert maps.memory_mb() < 2.0 * tiles_at[80] * maps.bytes_per_tile() / 1e6 + maps.table.nbytes / 1e6
+
+
+def test_coarse_search_by_whole_cell_shifts_picks_what_placing_every_offset_picks():
+    """The likelihood matcher's coarse grid on tiles reuses each yaw's point placement across
+    its whole-cell x/y offsets (`cell_shifts`); it must choose the same offsets, hence the
+    same poses and scores, as placing the points anew for every offset."""
+    from slamlab.slam.matcher import LikelihoodFieldMatcher, cell_shifts
+    from slamlab.slam.tiled_match import tiled_field_search
+
+    rng = np.random.default_rng(3)
+    n = 6
+    maps = TiledMaps(SETTINGS, n, field_sigma_m=0.1, field_radius_m=0.3)
+    for _ in range(4):  # different maps per particle
+        pts, origin = _scan(rng, m=120)
+        maps.insert_scan(rng.normal(0.0, [0.2, 0.2, 0.1], (n, 3)), pts, origin)
+    m = LikelihoodFieldMatcher(sigma_m=0.1, radius_m=0.3, xy_half_width_m=0.1, xy_step_m=RES, prior_sigma_xy_m=0.05, prior_sigma_yaw_rad=0.1)
+    scan, _ = _scan(rng, m=120)
+    poses = rng.normal(0.0, [0.15, 0.15, 0.05], (n, 3))
+    shifts, by_yaw, yaws = cell_shifts(m.offsets, maps.res)
+    assert len(shifts) == len(m.offsets) == 5 * 5 * 9 and by_yaw.shape == (9, 25)
+    out = {}
+    for name, (sh, by, ya) in {"cells": (shifts, by_yaw, yaws), "every": cell_shifts(m.offsets, 0.03)}.items():
+        best, scores = np.empty((n, 3)), np.empty(n)
+        tiled_field_search(maps.pool_f, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, poses,
+                           np.ascontiguousarray(scan[::3]), scan, m.offsets, sh, by, ya, 0.025, 0.0125, 4, m.kxy, m.kyaw, best, scores)
+        out[name] = (best, scores)
+    assert len(cell_shifts(m.offsets, 0.03)[0]) == 0  # 0.05 m is not a whole number of 3 cm cells
+    np.testing.assert_allclose(out["cells"][0], out["every"][0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(out["cells"][1], out["every"][1], rtol=1e-12)
+    assert not np.allclose(out["cells"][0], poses)  # the search did move the particles

@@ -179,6 +179,22 @@ def offset_grid(xy_half_width_m: float, xy_step_m: float, yaw_half_width_rad: fl
     return np.ascontiguousarray(g[np.argsort(key, kind="stable")])
 
 
+def cell_shifts(offsets: FloatArray, res_m: float) -> tuple[np.ndarray, np.ndarray, FloatArray]:
+    """When every x/y offset is a whole number of cells of `res_m` (so a kernel can place each
+    yaw's points once and shift them by cells): shifts (K, 3) int (rows, cols, yaw index),
+    by_yaw (Y, K / Y) the offsets of each yaw in their order, yaws (Y,) rad. Otherwise empty
+    arrays (the kernel then places every offset)."""
+    yaws, yaw_idx = np.unique(offsets[:, 2], return_inverse=True)
+    cells = offsets[:, :2] / res_m
+    whole = np.round(cells)
+    if not np.allclose(cells, whole, rtol=0.0, atol=1e-9):
+        return np.empty((0, 3), dtype=np.int64), np.empty((0, 0), dtype=np.int64), np.empty(0)
+    shifts = np.column_stack([whole[:, 1], whole[:, 0], yaw_idx]).astype(np.int64)
+    # an offset grid has the same x/y offsets at every yaw
+    by_yaw = np.argsort(yaw_idx, kind="stable").reshape(len(yaws), -1).astype(np.int64)
+    return shifts, by_yaw, yaws
+
+
 class Matcher(ABC):
     """Interface: `match(grid, poses (N,3), scan) -> (poses (N,3), scores (N,))` against one
     shared map, and `match_each(maps, poses, scan)` where particle i matches against its own
@@ -314,9 +330,10 @@ class LikelihoodFieldMatcher(Matcher):
         fine = np.ascontiguousarray(scan.xy[:: self.beam_step])
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
+        shifts, by_yaw, yaws = cell_shifts(self.offsets, maps.res)
         tiled_field_search(
             maps.pool_f, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, np.ascontiguousarray(poses), coarse, fine,
-            self.offsets, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
+            self.offsets, shifts, by_yaw, yaws, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
             self.kxy / prior_scale, self.kyaw / prior_scale, best, scores,
         )
         return self._finish(poses, best, scores)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 
 import numba
+import numpy as np
 
 from slamlab.slam.tiles import TILE_MASK, TILE_SHIFT
 
@@ -88,12 +89,73 @@ def tiled_grid_search(pool_lo, table, thresh, ox, oy, inv_res, poses, pts, offse
 
 
 @numba.njit(cache=True)
-def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw):
-    """One particle: coarse grid, then hill climbing (see `matcher.field_search`)."""
+def _coarse_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, pts, offsets, shifts, by_yaw, yaws, kxy, kyaw):
+    """The coarse grid when its x/y offsets are whole cells: index of the best offset.
+
+    For each yaw offset a point is placed once (cell, bilinear weights) and the map window
+    all its x/y shifts touch is read once into `win`; every shift's bilinear value then comes
+    from that small window. Each offset's score adds its points in the same order with the
+    same terms as the general loop, so scores, order and ties are the general loop's (up to
+    the last bits of the placement: the shift is added in cells, not metres)."""
+    H = tab.shape[0] << TILE_SHIFT
+    W = tab.shape[1] << TILE_SHIFT
+    K = offsets.shape[0]
+    r_lo = shifts[:, 0].min()
+    c_lo = shifts[:, 1].min()
+    wr = shifts[:, 0].max() - r_lo + 2
+    wc = shifts[:, 1].max() - c_lo + 2
+    win = np.empty((wr, wc))
+    score = np.zeros(K)
+    for a in range(yaws.shape[0]):
+        c = math.cos(pt + yaws[a])
+        s = math.sin(pt + yaws[a])
+        for i in range(pts.shape[0]):
+            u = (px + c * pts[i, 0] - s * pts[i, 1] - ox) * inv_res - 0.5
+            v = (py + s * pts[i, 0] + c * pts[i, 1] - oy) * inv_res - 0.5
+            cb = int(math.floor(u))
+            rb = int(math.floor(v))
+            fu = u - cb
+            fv = v - rb
+            for dr in range(wr):
+                r = rb + r_lo + dr
+                for dc in range(wc):
+                    cc = cb + c_lo + dc
+                    win[dr, dc] = _cell(pool_f, tab, r, cc) if 0 <= r < H and 0 <= cc < W else 0.0
+            for j in range(by_yaw.shape[1]):
+                k = by_yaw[a, j]
+                r0 = rb + shifts[k, 0]
+                c0 = cb + shifts[k, 1]
+                if c0 < 0 or r0 < 0 or c0 + 1 >= W or r0 + 1 >= H:
+                    continue
+                y0 = shifts[k, 0] - r_lo
+                x0 = shifts[k, 1] - c_lo
+                score[k] += (1.0 - fv) * ((1.0 - fu) * win[y0, x0] + fu * win[y0, x0 + 1]) + fv * (
+                    (1.0 - fu) * win[y0 + 1, x0] + fu * win[y0 + 1, x0 + 1]
+                )
+    best = -1e300
+    bk = 0
+    for k in range(K):
+        sc = score[k] - (kxy * (offsets[k, 0] ** 2 + offsets[k, 1] ** 2) + kyaw * offsets[k, 2] ** 2)
+        if sc > best:
+            best = sc
+            bk = k
+    return bk
+
+
+@numba.njit(cache=True)
+def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offsets, shifts, by_yaw, yaws, lin_step, ang_step, levels, kxy, kyaw):
+    """One particle: coarse grid, then hill climbing (see `matcher.field_search`). With
+    `shifts` (K, 3: rows, cols, yaw index; empty = no) the coarse grid reuses each yaw's
+    point placement across its whole-cell x/y offsets (`_coarse_by_cells`)."""
     bx = px
     by = py
     bt = pt
-    if offsets.shape[0] > 1:
+    if offsets.shape[0] > 1 and shifts.shape[0] == offsets.shape[0]:
+        bk = _coarse_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, offsets, shifts, by_yaw, yaws, kxy, kyaw)
+        bx += offsets[bk, 0]
+        by += offsets[bk, 1]
+        bt += offsets[bk, 2]
+    elif offsets.shape[0] > 1:
         best = -1e300
         bk = 0
         for k in range(offsets.shape[0]):
@@ -151,12 +213,12 @@ def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offse
 
 
 @numba.njit(cache=True, parallel=True)
-def tiled_field_search(pool_f, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores):
+def tiled_field_search(pool_f, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, shifts, by_yaw, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores):
     """Per particle i, coarse-to-fine likelihood-field matching on its own map `table[i]`."""
     for i in numba.prange(poses.shape[0]):
         bx, by, bt, cur = _climb(
             pool_f, table[i], ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2],
-            coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw,
+            coarse_pts, fine_pts, offsets, shifts, by_yaw, yaws, lin_step, ang_step, levels, kxy, kyaw,
         )
         out_poses[i, 0] = bx
         out_poses[i, 1] = by
