@@ -273,3 +273,29 @@ def test_course_motion_sqrt_growth_spreads_the_same_per_metre_whatever_the_step(
     assert _spread_after(lin, 0.1) == pytest.approx(want / np.sqrt(2), rel=0.03)
     with pytest.raises(ConfigError, match="motion.growth"):
         CourseMotion(growth="cubic")
+
+
+@pytest.mark.parametrize("yaw_half_width", [0.0, 0.02])
+def test_grid_matcher_by_whole_cell_shifts_counts_what_every_offset_counts(yaw_half_width):
+    """The course grid matcher places each yaw's points once and shifts them by whole cells
+    (`grid_search_shifts`); it must pick the same offsets with the same counts as placing the
+    points for every offset (`grid_search_hits`), including points lying exactly on cell
+    borders, where rounding could otherwise move them to a neighbouring cell."""
+    from slamlab.slam.matcher import cell_shifts, grid_search_hits, grid_search_shifts
+
+    rng = np.random.default_rng(5)
+    res, ox, oy = 0.05, -6.4, -6.4
+    lo = rng.choice([-1.0, 2.0], size=(256, 256), p=[0.8, 0.2]).astype(np.float32)
+    offsets = offset_grid(0.2, res, yaw_half_width, 0.01)
+    pts = rng.uniform(-4.0, 4.0, (200, 2))
+    pts[:60] = np.round(pts[:60] / res) * res  # on cell borders (with the poses below)
+    poses = np.vstack([np.zeros((1, 3)), np.column_stack([np.round(rng.uniform(-1, 1, (7, 2)) / res) * res, np.zeros(7)]),
+                       rng.uniform(-1.0, 1.0, (8, 3))])
+    shifts, by_yaw, yaws = cell_shifts(offsets, res)
+    assert len(shifts) == len(offsets)
+    a_p, a_s = np.empty_like(poses), np.empty(len(poses))
+    b_p, b_s = np.empty_like(poses), np.empty(len(poses))
+    grid_search_hits(lo, np.float32(0.0), ox, oy, 1.0 / res, poses, pts, offsets, a_p, a_s)
+    grid_search_shifts(lo, np.float32(0.0), ox, oy, 1.0 / res, poses, pts, offsets, shifts, by_yaw, yaws, b_p, b_s)
+    assert np.array_equal(a_p, b_p) and np.array_equal(a_s, b_s)
+    assert len(np.unique(a_s)) > 3  # the scores differ between particles: a real search

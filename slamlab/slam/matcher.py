@@ -94,6 +94,72 @@ def grid_search_hits(lo, thresh, ox, oy, inv_res, poses, pts, offsets, out_poses
         out_scores[i] = best
 
 
+# a point this close (in cells) to a cell border is placed anew for every offset, so that
+# rounding can never put it in another cell than the general loop does
+_BORDER_CELLS = 1e-6
+
+
+@numba.njit(cache=True, parallel=True)
+def grid_search_shifts(lo, thresh, ox, oy, inv_res, poses, pts, offsets, shifts, by_yaw, yaws, out_poses, out_scores):
+    """`grid_search_hits` when the x/y offsets are whole cells (`cell_shifts`): each yaw's
+    points are placed (rotated, floored) once per particle and every x/y offset reads them
+    shifted by whole cells. Points within `_BORDER_CELLS` of a cell border are placed anew per
+    offset, exactly as `score_hits` does, so the counts, the chosen offsets and hence the
+    trajectories are identical to `grid_search_hits`. Particles run on all cores; each
+    particle's result depends only on its own inputs (not on the thread count)."""
+    H, W = lo.shape
+    K = offsets.shape[0]
+    m = pts.shape[0]
+    for i in numba.prange(poses.shape[0]):
+        score = np.zeros(K)
+        rows = np.empty(m, dtype=np.int64)
+        cols = np.empty(m, dtype=np.int64)
+        exact = np.zeros(m, dtype=np.bool_)
+        for a in range(yaws.shape[0]):
+            th = poses[i, 2] + yaws[a]
+            c = math.cos(th)
+            s = math.sin(th)
+            for q in range(m):
+                wx = poses[i, 0] + c * pts[q, 0] - s * pts[q, 1]
+                wy = poses[i, 1] + s * pts[q, 0] + c * pts[q, 1]
+                u = (wx - ox) * inv_res
+                v = (wy - oy) * inv_res
+                cols[q] = int(math.floor(u))
+                rows[q] = int(math.floor(v))
+                fu = u - cols[q]
+                fv = v - rows[q]
+                exact[q] = fu < _BORDER_CELLS or fu > 1.0 - _BORDER_CELLS or fv < _BORDER_CELLS or fv > 1.0 - _BORDER_CELLS
+            for j in range(by_yaw.shape[1]):
+                k = by_yaw[a, j]
+                dr = shifts[k, 0]
+                dc = shifts[k, 1]
+                total = 0.0
+                for q in range(m):
+                    if exact[q]:  # as score_hits, at this offset's pose
+                        x = poses[i, 0] + offsets[k, 0]
+                        y = poses[i, 1] + offsets[k, 1]
+                        wx = x + c * pts[q, 0] - s * pts[q, 1]
+                        wy = y + s * pts[q, 0] + c * pts[q, 1]
+                        col = int(math.floor((wx - ox) * inv_res))
+                        row = int(math.floor((wy - oy) * inv_res))
+                    else:
+                        col = cols[q] + dc
+                        row = rows[q] + dr
+                    if 0 <= row < H and 0 <= col < W and lo[row, col] > thresh:
+                        total += 1.0
+                score[k] = total
+        best = -1.0
+        bk = 0
+        for k in range(K):
+            if score[k] > best:
+                best = score[k]
+                bk = k
+        out_poses[i, 0] = poses[i, 0] + offsets[bk, 0]
+        out_poses[i, 1] = poses[i, 1] + offsets[bk, 1]
+        out_poses[i, 2] = poses[i, 2] + offsets[bk, 2]
+        out_scores[i] = best
+
+
 @numba.njit(cache=True)
 def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores):
     """Coarse grid over `offsets` with `coarse_pts`, then hill climbing with `fine_pts`:
@@ -251,10 +317,13 @@ class GridMatcher(Matcher):
         pts = np.ascontiguousarray(scan.xy[:: self.beam_step])
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
-        grid_search_hits(
-            grid.log_odds, np.float32(grid.s.occupied_threshold), grid.origin[0], grid.origin[1], 1.0 / grid.res,
-            np.ascontiguousarray(poses), pts, self.offsets, best, scores,
-        )
+        args = (grid.log_odds, np.float32(grid.s.occupied_threshold), grid.origin[0], grid.origin[1], 1.0 / grid.res,
+                np.ascontiguousarray(poses), pts, self.offsets)
+        shifts, by_yaw, yaws = cell_shifts(self.offsets, grid.res)
+        if len(shifts):  # whole-cell offsets (the course's 5 cm grid on a 5 cm map)
+            grid_search_shifts(*args, shifts, by_yaw, yaws, best, scores)
+        else:
+            grid_search_hits(*args, best, scores)
         return self._finish(poses, best, scores)
 
     def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
