@@ -227,6 +227,26 @@ def test_likelihood_matcher_recovers_pose_subcell():
     np.testing.assert_allclose(best[0], 0.0, atol=0.015)
 
 
+def test_matchers_count_the_map_cells_they_read():
+    """`map_reads` (metrics.json's matcher_map_reads): a hit test reads one cell per point and
+    offset; a bilinear field value reads four. A climb that starts at the optimum scores its
+    start and six neighbours per level and stops; one from off the optimum scores more."""
+    g, scan = _box_map()
+    m = len(scan.xy)
+    grid = GridMatcher(xy_half_width_m=0.2, xy_step_m=0.05)
+    grid.match(g, np.zeros((2, 3)), scan)
+    assert grid.map_reads == 2 * 81 * m
+    lf = LikelihoodFieldMatcher(xy_half_width_m=0.0, yaw_half_width_rad=0.0, refine_levels=0)
+    lf.match(g, np.zeros((3, 3)), scan)
+    assert lf.map_reads == 3 * 4 * m  # no coarse grid, no climb: one field value per point
+    climb = LikelihoodFieldMatcher(xy_half_width_m=0.1, xy_step_m=0.05, yaw_half_width_rad=0.0, refine_levels=3, coarse_beam_step=3)
+    climb.match(g, np.array([[0.06, -0.04, 0.02]]), scan)
+    coarse = 25 * len(scan.xy[::3])
+    fine = climb.map_reads / 4 - coarse
+    # the start, then at least one round of six moves per level, each over every point
+    assert fine % m == 0 and fine / m >= 1 + 6 * 3
+
+
 def test_offset_grid_sizes_and_order():
     o = offset_grid(0.2, 0.05, 0.0, 0.01)
     assert o.shape == (81, 3)

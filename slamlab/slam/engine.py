@@ -324,6 +324,7 @@ def run_slam(
             "neff_mean": float(np.mean(rows["neff"])),
             "neff_min": float(np.min(rows["neff"])),
             "filter": c.filter.name,
+            "matcher_map_reads": int(c.matcher.map_reads) if slam else 0,
             **maps.memory(),
         },
     )

@@ -161,12 +161,13 @@ def grid_search_shifts(lo, thresh, ox, oy, inv_res, poses, pts, offsets, shifts,
 
 
 @numba.njit(cache=True)
-def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores):
+def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals):
     """Coarse grid over `offsets` with `coarse_pts`, then hill climbing with `fine_pts`:
     try +-lin_step in x, y and +-ang_step in yaw, take the best improving move, repeat; when
     none improves halve both steps, `levels` times. Every score is penalised by the motion
     prior `kxy * |dxy|^2 + kyaw * dyaw^2` (offset from the predicted pose), so flat
-    directions (corridors) do not random-walk. Writes best poses and their fine scores."""
+    directions (corridors) do not random-walk. Writes best poses, their fine scores and the
+    number of fine scores computed (`out_evals`, for the map-read count)."""
     for i in range(poses.shape[0]):
         px = poses[i, 0]
         py = poses[i, 1]
@@ -187,6 +188,7 @@ def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, l
             by += offsets[bk, 1]
             bt += offsets[bk, 2]
         cur = score_field(field, ox, oy, inv_res, bx, by, bt, fine_pts)
+        n_eval = 1
         cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
         ls = lin_step
         as_ = ang_step
@@ -213,6 +215,7 @@ def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, l
                     else:
                         ct -= as_
                     sc = score_field(field, ox, oy, inv_res, cx, cy, ct, fine_pts)
+                    n_eval += 1
                     sc -= kxy * ((cx - px) ** 2 + (cy - py) ** 2) + kyaw * (ct - pt) ** 2
                     if sc > ms:
                         ms = sc
@@ -232,6 +235,7 @@ def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, l
         out_poses[i, 1] = by
         out_poses[i, 2] = bt
         out_scores[i] = cur
+        out_evals[i] = n_eval
 
 
 def offset_grid(xy_half_width_m: float, xy_step_m: float, yaw_half_width_rad: float, yaw_step_rad: float) -> FloatArray:
@@ -270,6 +274,9 @@ class Matcher(ABC):
     field_sigma_m: float = 0.0
     field_radius_m: float = 0.0
     move_to_best: bool = True
+    # map cells read so far (a bilinear field value is 4 reads, a hit test 1): the work a
+    # run's matching does, whatever the kernel; at ~1 ns a read it bounds the matcher's time
+    map_reads: int = 0
 
     @abstractmethod
     def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
@@ -324,6 +331,7 @@ class GridMatcher(Matcher):
             grid_search_shifts(*args, shifts, by_yaw, yaws, best, scores)
         else:
             grid_search_hits(*args, best, scores)
+        self.map_reads += len(poses) * len(self.offsets) * len(pts)
         return self._finish(poses, best, scores)
 
     def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
@@ -334,6 +342,7 @@ class GridMatcher(Matcher):
             maps.pool_lo, maps.table, np.float32(maps.s.occupied_threshold), maps.origin[0], maps.origin[1], 1.0 / maps.res,
             np.ascontiguousarray(poses), pts, self.offsets, best, scores,
         )
+        self.map_reads += len(poses) * len(self.offsets) * len(pts)
         return self._finish(poses, best, scores)
 
 
@@ -386,11 +395,13 @@ class LikelihoodFieldMatcher(Matcher):
         fine = np.ascontiguousarray(scan.xy[:: self.beam_step])
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
+        evals = np.empty(len(poses), dtype=np.int64)
         field_search(
             grid.field, grid.origin[0], grid.origin[1], 1.0 / grid.res, np.ascontiguousarray(poses), coarse, fine,
             self.offsets, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
-            self.kxy, self.kyaw, best, scores,
+            self.kxy, self.kyaw, best, scores, evals,
         )
+        self._count_field_reads(len(poses), len(coarse), len(fine), evals)
         return self._finish(poses, best, scores)
 
     def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
@@ -399,10 +410,16 @@ class LikelihoodFieldMatcher(Matcher):
         fine = np.ascontiguousarray(scan.xy[:: self.beam_step])
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
+        evals = np.empty(len(poses), dtype=np.int64)
         shifts, by_yaw, yaws = cell_shifts(self.offsets, maps.res)
         tiled_field_search(
             maps.pool_f, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, np.ascontiguousarray(poses), coarse, fine,
             self.offsets, shifts, by_yaw, yaws, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
-            self.kxy / prior_scale, self.kyaw / prior_scale, best, scores,
+            self.kxy / prior_scale, self.kyaw / prior_scale, best, scores, evals,
         )
+        self._count_field_reads(len(poses), len(coarse), len(fine), evals)
         return self._finish(poses, best, scores)
+
+    def _count_field_reads(self, n: int, n_coarse: int, n_fine: int, evals: np.ndarray) -> None:
+        coarse = n * len(self.offsets) * n_coarse if len(self.offsets) > 1 else 0
+        self.map_reads += 4 * (coarse + int(evals.sum()) * n_fine)

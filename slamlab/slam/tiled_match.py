@@ -168,6 +168,7 @@ def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offse
         by += offsets[bk, 1]
         bt += offsets[bk, 2]
     cur = tiled_score_field(pool_f, tab, ox, oy, inv_res, bx, by, bt, fine_pts)
+    n_eval = 1
     cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
     ls = lin_step
     as_ = ang_step
@@ -194,6 +195,7 @@ def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offse
                 else:
                     ct -= as_
                 sc = tiled_score_field(pool_f, tab, ox, oy, inv_res, cx, cy, ct, fine_pts)
+                n_eval += 1
                 sc -= kxy * ((cx - px) ** 2 + (cy - py) ** 2) + kyaw * (ct - pt) ** 2
                 if sc > ms:
                     ms = sc
@@ -209,14 +211,15 @@ def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offse
                 break
         ls *= 0.5
         as_ *= 0.5
-    return bx, by, bt, cur
+    return bx, by, bt, cur, n_eval
 
 
 @numba.njit(cache=True, parallel=True)
-def tiled_field_search(pool_f, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, shifts, by_yaw, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores):
-    """Per particle i, coarse-to-fine likelihood-field matching on its own map `table[i]`."""
+def tiled_field_search(pool_f, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, shifts, by_yaw, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals):
+    """Per particle i, coarse-to-fine likelihood-field matching on its own map `table[i]`;
+    `out_evals[i]`: the hill climb's scores of `fine_pts` (for the map-read count)."""
     for i in numba.prange(poses.shape[0]):
-        bx, by, bt, cur = _climb(
+        bx, by, bt, cur, n_eval = _climb(
             pool_f, table[i], ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2],
             coarse_pts, fine_pts, offsets, shifts, by_yaw, yaws, lin_step, ang_step, levels, kxy, kyaw,
         )
@@ -224,4 +227,5 @@ def tiled_field_search(pool_f, table, ox, oy, inv_res, poses, coarse_pts, fine_p
         out_poses[i, 1] = by
         out_poses[i, 2] = bt
         out_scores[i] = cur
+        out_evals[i] = n_eval
 
