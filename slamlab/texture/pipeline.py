@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from slamlab.artifacts import atomic_path
+from slamlab.io.atomic import atomic_path
 from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.eval.texture import DetectionCounts, texture_metrics
 from slamlab.frames import GridImage, KinectCalibration, RGBDFrame, Sequence

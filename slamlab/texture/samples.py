@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slamlab import artifacts
+from slamlab.io.atomic import write_npz
 from slamlab.eval.texture import DetectionCounts
 from slamlab.frames import KinectCalibration, RGBDFrame
 from slamlab.texture.align import sample_colors
@@ -117,4 +117,4 @@ def write_samples(path: Path, samples: list[FrameSample]) -> None:
             arrays[f"mask_{i}_{n}"] = m
         if s.truth is not None:
             arrays[f"truth_{i}"] = s.truth
-    artifacts.write_npz(path, **arrays)
+    write_npz(path, **arrays)

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from slamlab import robot
-from slamlab.artifacts import write_tum
+from slamlab.io.tum import write_tum
 from slamlab.datasets.sim import calib as simcalib
 from slamlab.datasets.sim import truth as simtruth
 from slamlab.datasets.sim.kinect import pixel_rays, render_depth, render_rgb, rgb_to_ir
@@ -39,7 +39,7 @@ from slamlab.geometry import wrap_angle
 
 # Bump whenever the generator's output changes for the same parameters: it is part of the
 # cache key, so stale cached sequences are never reused.
-SIM_VERSION = "3"  # 3: truth trajectory written by slamlab.artifacts.write_tum
+SIM_VERSION = "3"  # 3: truth trajectory written by slamlab.io.tum.write_tum
 # The loops layout's own version, appended to SIM_VERSION for it (so bumping it leaves every
 # ring sequence's cache key alone). Bump whenever the loops world or route changes.
 LOOPS_VERSION = "1"
