@@ -18,7 +18,7 @@ from slamlab.datasets.calibration import load_kinect_calibration
 from slamlab.datasets.carmen import load_carmen
 from slamlab.datasets.sim.calib import default_calibration, write_camera_params
 from slamlab.errors import DataError
-from slamlab.eval.relations import snap_relations
+from slamlab.datasets.relations import snap_relations
 from slamlab.frames import Relations
 
 N_SCANS = 40
