@@ -249,7 +249,8 @@ def run_texture_stage(seq: Sequence, result: SlamResult, cfg: DictConfig, run_di
 
     Any failure here is reported in metrics and never loses the SLAM results.
     """
-    from slamlab.texture.pipeline import run_texture, save_texture_outputs, save_truth_texture, texture_metrics
+    from slamlab.eval.texture import texture_metrics
+    from slamlab.texture.pipeline import run_texture, save_texture_outputs, save_truth_texture
     from slamlab.texture.samples import SAMPLE_FRAMES, write_samples
 
     occ = artifacts.occupancy_probability(result.log_odds.data)

@@ -15,9 +15,9 @@ from omegaconf import OmegaConf
 
 from slamlab.datasets.sim.calib import default_calibration
 from slamlab.errors import ConfigError
-from slamlab.eval.texture import DetectionCounts
 from slamlab.robot import COM_HEIGHT_M, camera_to_body
 from slamlab.texture.backproject import Backprojector
+from slamlab.texture.detection import DetectionCounts
 from slamlab.texture.ground import (
     GroundQuery,
     ImagePlaneGround,

@@ -11,8 +11,8 @@ the fixed-size accumulator; no frame is kept):
 4. floor points -> RGB frame (R, T) -> RGB pixel -> colour (`align`);
 5. colour added to the texture cell under each point (`texture_map`).
 
-Public entry points: `run_texture`, `save_texture_outputs`, `texture_metrics` (re-exported
-from `slamlab.eval.texture`), `texture_enabled`, `TextureResult`.
+Public entry points: `run_texture`, `save_texture_outputs`, `texture_enabled`,
+`TextureResult` (scored by `slamlab.eval.texture.texture_metrics`).
 
 Bad input never crashes a run half-way: missing calibration or no RGB-D raise a clear
 `DataError` before any work; a bad frame (no valid depth, no colour, colour too far in time,
@@ -34,20 +34,19 @@ from omegaconf import DictConfig, OmegaConf
 
 from slamlab.io.atomic import atomic_path
 from slamlab.errors import ConfigError, DataError, SlamlabError
-from slamlab.eval.texture import DetectionCounts, texture_metrics
 from slamlab.frames import GridImage, KinectCalibration, RGBDFrame, Sequence
 from slamlab import geometry
 from slamlab.texture.align import sample_colors, unmirror_calibration
 from slamlab.texture.backproject import Backprojector, scaled_intrinsics
+from slamlab.texture.detection import DetectionCounts
 from slamlab.texture.ground import GroundDetector, GroundQuery
 from slamlab.texture.samples import FrameSample, sample_frame, sample_ordinals
-from slamlab.texture.texture_map import TextureAccumulator
+from slamlab.texture.texture_map import TextureAccumulator, resample_to_grid
 
 __all__ = [
     "TextureResult",
     "run_texture",
     "save_texture_outputs",
-    "texture_metrics",
     "texture_enabled",
     "interpolate_poses",
     "PoseTrack",
@@ -511,8 +510,6 @@ def texture_over_map_image(result: TextureResult, occupancy_prob: np.ndarray) ->
 def save_truth_texture(result: TextureResult, floor_texture: GridImage, path: Path) -> None:
     """The true floor colour (simulated data) on `result`'s grid, shown only on the cells the
     texture covers, as RGBA like texture.png: the two images compare cell for cell."""
-    from slamlab.eval.texture import resample_to_grid
-
     colour, has = resample_to_grid(floor_texture, result.count.shape, result.resolution_m, result.origin_xy)
     rgba = np.zeros(result.count.shape + (4,), dtype=np.uint8)
     shown = has & result.covered

@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from slamlab.io.atomic import write_npz
-from slamlab.eval.texture import DetectionCounts
 from slamlab.frames import KinectCalibration, RGBDFrame
 from slamlab.texture.align import sample_colors
 from slamlab.texture.backproject import Backprojector, scaled_intrinsics
+from slamlab.texture.detection import DetectionCounts
 from slamlab.texture.ground import GroundDetector, GroundQuery
 
 SAMPLE_FRAMES = 5
