@@ -16,9 +16,9 @@ import pytest
 from hydra import compose, initialize_config_module
 
 from slamlab import artifacts
+from slamlab.cli.app import run_and_report
 from slamlab.errors import ConfigError
 from slamlab.frames import ScanFrame, Sequence
-from slamlab.pipeline import run_pipeline
 from slamlab.report.particle_figures import particle_paths_figure
 from slamlab.report.rundir import load_run
 from slamlab.slam.engine import run_slam, validate_config
@@ -52,7 +52,7 @@ def _line_sequence(n: int, step_m: float, rng_seed: int | None = None) -> Sequen
 def _run(tmp_path: Path, sim_cache: Path, *overrides: str) -> tuple[Path, dict]:
     ov = [*overrides, f"dataset.cache_dir={sim_cache}"]
     run_dir = tmp_path / "run"
-    metrics = run_pipeline(make_cfg(*ov), run_dir, overrides=list(overrides), progress="off")
+    metrics = run_and_report(make_cfg(*ov), run_dir, overrides=list(overrides), progress="off")
     return run_dir, metrics
 
 

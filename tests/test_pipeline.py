@@ -16,6 +16,7 @@ from hydra import compose, initialize_config_module
 from cli_helpers import slamlab_cli
 from slamlab import artifacts
 from slamlab.errors import ConfigError
+from slamlab.cli.app import run_and_report
 from slamlab.pipeline import RunDirectoryInUse, run_pipeline
 
 SHORT_SIM = ["dataset.duration_s=20", "particles=10"]
@@ -36,7 +37,7 @@ def sim_run(sim_cache, tmp_path_factory) -> Path:
     """One short simulated run with texture, shared by the checks below."""
     run_dir = tmp_path_factory.mktemp("run") / "r"
     cfg = make_cfg([*SHORT_SIM, f"dataset.cache_dir={sim_cache}"])
-    run_pipeline(cfg, run_dir, overrides=SHORT_SIM, progress="off")
+    run_and_report(cfg, run_dir, overrides=SHORT_SIM, progress="off")  # as `slamlab` runs it
     return run_dir
 
 
