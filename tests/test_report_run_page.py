@@ -178,6 +178,7 @@ def test_intel_run_writes_per_relation_errors_that_match_its_metrics(intel_run: 
 
 
 @pytest.mark.slow
+@pytest.mark.browser
 @needs_browser
 @pytest.mark.parametrize("which", ["sim", "intel"])
 def test_run_page_in_chromium_has_errors_over_time_ground_frames_and_a_working_replay(which: str, request) -> None:

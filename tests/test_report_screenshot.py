@@ -20,6 +20,7 @@ _spec.loader.exec_module(shots)
 
 pytestmark = [
     pytest.mark.slow,
+    pytest.mark.browser,
     pytest.mark.skipif(
         shots.find_browser() is None and os.environ.get("SLAMLAB_REQUIRE_BROWSER") != "1",
         reason="Chromium not installed",
