@@ -9,9 +9,10 @@ from slamlab import robot
 from slamlab.datasets.sim.calib import sim_calibration
 from slamlab.datasets.sim.kinect import pixel_rays, render_depth, rgb_to_ir, visible_boxes
 from slamlab.datasets.sim.raycast import HIT_FLOOR, cast_ray, cast_ray_reference
-from slamlab.datasets.sim.sensors import BEAM_ANGLES, body_to_world, sensor_poses, simulate_scans
+from slamlab.datasets.sim.sensors import BEAM_ANGLES, sensor_poses, simulate_scans
 from slamlab.datasets.sim.trajectory import simulate_motion
 from slamlab.datasets.sim.world import build_world, occupancy_grid
+from slamlab.geometry import body_to_world
 
 NO_CYL = np.zeros((0, 4))
 
@@ -135,11 +136,15 @@ def test_world_layout_and_occupancy() -> None:
 
 def test_body_to_world_matches_the_course_chain() -> None:
     x, y, th, roll, pitch, ny, hp = 1.0, -2.0, 0.7, 0.03, -0.02, 0.4, 0.3
-    T = body_to_world(x, y, th, roll, pitch) @ robot.lidar_to_body(ny, hp)
+    T = body_to_world(x, y, th, roll, pitch, robot.COM_HEIGHT_M) @ robot.lidar_to_body(ny, hp)
     from slamlab.geometry import rot_x, rot_y, rot_z, trans
 
     course = trans(x, y, 0.93) @ rot_z(th) @ rot_y(pitch) @ rot_x(roll) @ trans(z=0.33) @ rot_z(ny) @ rot_y(hp) @ trans(z=0.15)
     np.testing.assert_allclose(T, course, atol=1e-12)
+    # the simulator's lidar poses go through the same chain
+    state = {"pose": np.array([[x, y, th]]), "roll": np.array([roll]), "pitch": np.array([pitch]),
+             "neck_yaw": np.array([ny]), "head_pitch": np.array([hp])}
+    np.testing.assert_allclose(sensor_poses(state, "lidar")[0], course, atol=1e-12)
 
 
 def test_world_scale_sets_the_building_size():

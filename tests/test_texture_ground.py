@@ -15,6 +15,7 @@ from omegaconf import OmegaConf
 
 from slamlab.datasets.sim.calib import default_calibration
 from slamlab.errors import ConfigError
+from slamlab.geometry import body_to_world
 from slamlab.robot import COM_HEIGHT_M, camera_to_body
 from slamlab.texture.backproject import Backprojector
 from slamlab.texture.detection import DetectionCounts
@@ -26,7 +27,7 @@ from slamlab.texture.ground import (
     image_plane_coefficients,
     ransac_plane,
 )
-from slamlab.texture.pipeline import body_to_world, build_detector
+from slamlab.texture.pipeline import build_detector
 from slamlab.texture.synthetic import checker_texture, render_frame, scaled_calibration
 
 CONF = Path(__file__).resolve().parents[1] / "slamlab" / "conf" / "ground"
@@ -41,7 +42,7 @@ def frames():
     tex = checker_texture()
     out = []
     for i, (pitch, yaw, wall) in enumerate([(0.6, 0.0, 2.5), (0.35, 0.3, 3.0), (0.8, -0.2, 1.8), (0.2, 0.0, 4.0)]):
-        T = body_to_world(np.array([0.1 * i, -0.2, 0.2 * i]), COM_HEIGHT_M) @ camera_to_body(yaw, pitch)
+        T = body_to_world(0.1 * i, -0.2, 0.2 * i, height_m=COM_HEIGHT_M) @ camera_to_body(yaw, pitch)
         # The wall is placed in the world frame, ahead of the robot.
         depth, rgb, label = render_frame(calib, T, tex, wall_x_m=0.1 * i + wall, noise_m=0.002, seed=i)
         pts = Backprojector(calib.ir)(depth)
@@ -85,7 +86,7 @@ def test_threshold_uses_world_height(frames):
 def test_plane_rejects_a_wall_only_view():
     calib = scaled_calibration(default_calibration(), 0.25)
     # Head level, looking straight at a wall 1 m away: the only plane is vertical.
-    T = body_to_world(np.zeros(3), COM_HEIGHT_M) @ camera_to_body(0.0, 0.0)
+    T = body_to_world(0.0, 0.0, 0.0, height_m=COM_HEIGHT_M) @ camera_to_body(0.0, 0.0)
     depth, _, label = render_frame(calib, T, checker_texture(), wall_x_m=1.0, max_depth_m=4.5)
     depth[label] = 0.0  # keep only the wall
     query = GroundQuery(Backprojector(calib.ir)(depth), T, calib.ir)

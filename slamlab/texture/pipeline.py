@@ -50,7 +50,6 @@ __all__ = [
     "texture_enabled",
     "interpolate_poses",
     "PoseTrack",
-    "body_to_world",
     "build_detector",
 ]
 
@@ -189,12 +188,6 @@ def interpolate_poses(times: np.ndarray, poses: np.ndarray, t_query: np.ndarray 
     """One-off `PoseTrack(times, poses)(t_query)`: the trajectory at `t_query` (s) and how far
     (s) each query lies outside the trajectory's time span (0 inside)."""
     return PoseTrack(times, poses)(t_query)
-
-
-def body_to_world(pose: np.ndarray, body_height_m: float, roll: float = 0.0, pitch: float = 0.0) -> np.ndarray:
-    """4x4 world pose of the body: Txyz(x, y, body_height_m) Rz(theta) Ry(pitch) Rx(roll)."""
-    x, y, th = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
-    return geometry.body_to_world(x, y, th, roll, pitch, body_height_m)
 
 
 # ---- config -------------------------------------------------------------------------------
@@ -406,7 +399,8 @@ def run_texture(
 def _camera_to_world(frame: RGBDFrame, track: PoseTrack, body_height_m: float) -> np.ndarray:
     """4x4 pose of the IR optical frame in the world at the frame's depth time."""
     pose, _ = track(frame.t)
-    T_wb = body_to_world(pose, body_height_m, frame.roll, frame.pitch)
+    x, y, th = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
+    T_wb = geometry.body_to_world(x, y, th, frame.roll, frame.pitch, body_height_m)
     return T_wb @ np.asarray(frame.camera_to_body, dtype=np.float64).reshape(4, 4)
 
 

@@ -116,8 +116,8 @@ def synthetic_sequence(
     true floor texture; `poses` (N, 3) are the true body poses. Frames are rendered up front
     (use a `scaled_calibration` for speed)."""
     from slamlab.frames import GroundTruth, RGBDFrame, Sequence
+    from slamlab.geometry import body_to_world
     from slamlab.robot import COM_HEIGHT_M, camera_to_body
-    from slamlab.texture.pipeline import body_to_world
 
     texture = texture if texture is not None else checker_texture()
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
@@ -125,7 +125,8 @@ def synthetic_sequence(
     labels: dict[int, np.ndarray] = {}
     cam_to_body = camera_to_body(neck_yaw_rad, head_pitch_rad)
     for i, pose in enumerate(poses):
-        T = body_to_world(pose, COM_HEIGHT_M) @ cam_to_body
+        x, y, th = (float(v) for v in pose)
+        T = body_to_world(x, y, th, height_m=COM_HEIGHT_M) @ cam_to_body
         depth, rgb, label = render_frame(calib, T, texture, wall_x_m=wall_x_m, noise_m=noise_m, seed=i)
         frames.append(
             RGBDFrame(
