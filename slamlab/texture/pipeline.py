@@ -32,12 +32,13 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from slamlab.camera import scaled_intrinsics
 from slamlab.io.atomic import atomic_path
 from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.frames import GridImage, KinectCalibration, RGBDFrame, Sequence
 from slamlab import geometry
 from slamlab.texture.align import sample_colors, unmirror_calibration
-from slamlab.texture.backproject import Backprojector, scaled_intrinsics
+from slamlab.texture.backproject import Backprojector
 from slamlab.texture.detection import DetectionCounts
 from slamlab.texture.ground import GroundDetector, GroundQuery
 from slamlab.texture.samples import FrameSample, sample_frame, sample_ordinals

@@ -19,9 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from slamlab.io.atomic import write_npz
+from slamlab.camera import scaled_intrinsics
 from slamlab.frames import KinectCalibration, RGBDFrame
 from slamlab.texture.align import sample_colors
-from slamlab.texture.backproject import Backprojector, scaled_intrinsics
+from slamlab.texture.backproject import Backprojector
 from slamlab.texture.detection import DetectionCounts
 from slamlab.texture.ground import GroundDetector, GroundQuery
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from slamlab.camera import pixel_rays, scaled_intrinsics
 from slamlab.frames import CameraIntrinsics, GridImage, KinectCalibration
-from slamlab.texture.backproject import undistort_normalized
 
 WALL_RGB = (200, 30, 200)  # a colour the floor textures below never use
 
@@ -28,13 +28,9 @@ def checker_texture(size_m: float = 12.0, res_m: float = 0.02, tile_m: float = 0
 
 
 def _camera_rays(intr: CameraIntrinsics) -> np.ndarray:
-    """(H, W, 3) normalised rays (x/z, y/z, 1) of every pixel centre."""
-    v, u = np.mgrid[0 : intr.height, 0 : intr.width].astype(np.float64)
-    yd = (v - intr.cc[1]) / intr.fc[1]
-    xd = (u - intr.cc[0]) / intr.fc[0] - intr.alpha_c * yd
-    if np.any(np.asarray(intr.kc) != 0):
-        xd, yd = undistort_normalized(xd, yd, intr.kc)
-    return np.stack([xd, yd, np.ones_like(xd)], axis=-1)
+    """(H, W, 3) normalised rays (x/z, y/z, 1) of every pixel centre, lens distortion inverted."""
+    _, _, x, y = pixel_rays(intr, undistort=True)
+    return np.stack([x, y, np.ones_like(x)], axis=-1)
 
 
 def _hit(T_world_cam: np.ndarray, rays: np.ndarray, wall_x_m: float | None) -> tuple[np.ndarray, np.ndarray]:
@@ -94,8 +90,6 @@ def render_frame(
 
 def scaled_calibration(calib: KinectCalibration, scale: float) -> KinectCalibration:
     """The same Kinect with both images resized by `scale` (fast small frames for tests)."""
-    from slamlab.texture.backproject import scaled_intrinsics
-
     def s(intr: CameraIntrinsics) -> CameraIntrinsics:
         return scaled_intrinsics(intr, max(1, round(intr.width * scale)), max(1, round(intr.height * scale)))
 
