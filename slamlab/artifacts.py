@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from slamlab.errors import DataError
 from slamlab.frames import GridImage
 
 # The writers live in slamlab.io (below datasets and texture, which use them too); they are
@@ -67,10 +68,23 @@ def write_map(run_dir: Path, grid: GridImage) -> None:
     )
 
 
+def read_logodds(path: Path) -> GridImage:
+    """The one reader of `map_logodds.npz`: `data` (H, W) float32 log-odds, `resolution_m`
+    (m), `origin_xy` (m) as a GridImage. A file without those arrays raises DataError naming it."""
+    need = ("data", "resolution_m", "origin_xy")
+    with np.load(path) as z:
+        missing = [name for name in need if name not in z]
+        if missing:
+            raise DataError(path, f"missing array(s) {', '.join(missing)} (need {', '.join(need)})")
+        data = np.asarray(z["data"], dtype=np.float32)
+        res = float(np.asarray(z["resolution_m"]).reshape(()))
+        origin = np.asarray(z["origin_xy"], dtype=np.float64).reshape(2)
+    return GridImage(data, res, (float(origin[0]), float(origin[1])))
+
+
 def read_map(run_dir: Path) -> GridImage:
-    """Load `map_logodds.npz` back into a GridImage."""
-    with np.load(Path(run_dir) / "map_logodds.npz") as z:
-        return GridImage(z["data"], float(z["resolution_m"]), tuple(float(v) for v in z["origin_xy"]))
+    """A run folder's map (`map_logodds.npz`, see `read_logodds`)."""
+    return read_logodds(Path(run_dir) / "map_logodds.npz")
 
 
 def write_consistency(run_dir: Path, series: dict[str, np.ndarray]) -> None:
