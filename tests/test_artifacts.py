@@ -50,7 +50,12 @@ def test_map_files_follow_map_server_convention(tmp_path):
     np.testing.assert_array_equal(back.data, lo)
     assert back.data.dtype == np.float32 and back.resolution_m == 0.05
     assert back.origin_xy == (-1.0, 2.0)
-    assert (tmp_path / "map.png").stat().st_size > 0
+    # map.png: grey = 1 - P(occupied), top row = highest y, like the PGM
+    from PIL import Image
+
+    png = np.asarray(Image.open(tmp_path / "map.png").convert("L"))
+    assert png.shape == (4, 6)
+    assert png[3, 0] < 5 and png[0, 5] > 250 and abs(int(png[1, 1]) - 128) < 3  # occupied, free, unknown
 
 
 def test_a_log_odds_file_without_its_arrays_names_the_file_and_the_array(tmp_path):
