@@ -138,18 +138,18 @@ def _cli(args: list[str], cwd: Path, cache: Path) -> subprocess.CompletedProcess
     return slamlab_cli(args, cwd, cache, timeout=600)
 
 
-def test_cli_bad_input_is_one_clear_line(tmp_path, sim_cache):
+def test_cli_bad_input_is_one_clear_line(tmp_path, sim_cache, slamlab_app):
     missing = tmp_path / "nowhere.clf"
-    proc = _cli(["dataset=carmen", f"dataset.path={missing}", f"hydra.run.dir={tmp_path / 'r'}"], tmp_path, sim_cache)
+    proc = slamlab_app(["dataset=carmen", f"dataset.path={missing}", f"hydra.run.dir={tmp_path / 'r'}"], tmp_path, sim_cache)
     assert proc.returncode == 2
     assert str(missing) in proc.stderr
     assert "Traceback" not in proc.stderr
-    proc = _cli(["resampler=nonesuch"], tmp_path, sim_cache)
+    proc = slamlab_app(["resampler=nonesuch"], tmp_path, sim_cache)
     assert proc.returncode != 0 and "resampler" in proc.stderr and "Traceback" not in proc.stderr
 
 
-def test_cli_refuses_a_used_run_dir(sim_run, tmp_path, sim_cache):
-    proc = _cli([f"hydra.run.dir={sim_run}"], tmp_path, sim_cache)
+def test_cli_refuses_a_used_run_dir(sim_run, tmp_path, sim_cache, slamlab_app):
+    proc = slamlab_app([f"hydra.run.dir={sim_run}"], tmp_path, sim_cache)
     assert proc.returncode == 2 and "never overwrites" in proc.stderr
     assert json.loads((sim_run / "metrics.json").read_text())["status"] == "ok"
 
