@@ -59,6 +59,7 @@ def _run(tmp_path: Path, sim_cache: Path, *overrides: str) -> tuple[Path, dict]:
 # ---------------------------------------------------------------- step 1: the first scan
 
 
+@pytest.mark.slow
 def test_first_scan_map_holds_exactly_that_scans_hits_and_free_cells(tmp_path, sim_cache):
     run_dir, m = _run(tmp_path, sim_cache, "+experiment=ladder_first_scan", SHORT_SIM)
     # the first processed scan is the last one before the robot moves (scan 100); the run stops there
@@ -149,6 +150,7 @@ def test_predict_spread_after_one_metre_matches_the_configured_noise():
     assert loud.steps["spread_theta_rad"].iloc[k] == pytest.approx(10 * want_th, rel=tol)
 
 
+@pytest.mark.slow
 def test_predict_run_report_draws_every_path_and_the_spread(tmp_path, sim_cache):
     run_dir, m = _run(tmp_path, sim_cache, "+experiment=ladder_predict", SHORT_SIM, "steps.max_scans=300")
     assert m["mode"] == "predict" and m["resample_count"] == 0
@@ -175,6 +177,7 @@ def _table_rows(page: str, table_id: str) -> list[list[str]]:
     return rows
 
 
+@pytest.mark.slow
 def test_three_particle_report_shows_the_weights_the_engine_computed(tmp_path, sim_cache, monkeypatch):
     seen: list[np.ndarray] = []
     real_update = LogSumExpWeighting.update
@@ -206,6 +209,7 @@ def test_three_particle_report_shows_the_weights_the_engine_computed(tmp_path, s
 # ---------------------------------------------------------------- linear_exp on THOR scans
 
 
+@pytest.mark.slow
 def test_linear_exp_overflow_on_thor_scans_is_counted_and_reported(tmp_path, sim_cache):
     # all 1,081 beams (matcher.beam_step=1): the best particle hits 750-1,070 wall cells per
     # scan, past exp's float64 limit at every update (the default beam_step=4 stays near 260)
@@ -235,6 +239,7 @@ def test_record_first_scan_must_be_a_bool(tmp_path, sim_cache):
         _run(tmp_path, sim_cache, "record.first_scan=maybe", SHORT_SIM)
 
 
+@pytest.mark.slow
 def test_ladder_sweep_runs_every_step_into_one_report(tmp_path, sim_cache):
     sweep = tmp_path / "ladder"
     cmd = [sys.executable, "-m", "slamlab.cli.app", "+experiment=ladder", "dataset.duration_s=6", "progress=off",
@@ -255,6 +260,7 @@ def test_ladder_sweep_runs_every_step_into_one_report(tmp_path, sim_cache):
         assert name in page
 
 
+@pytest.mark.slow
 def test_linear_exp_equals_logsumexp_on_thor_scans_without_overflow(tmp_path, sim_cache, monkeypatch):
     # the default beam_step=4 keeps the best correlation near 260 < 709.8: no overflow, and at
     # every update of a THOR run log-sum-exp gives the weights linear_exp computed. (Two whole
