@@ -2,7 +2,7 @@
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup run test test-fast bench clean
+.PHONY: setup run lint test test-fast bench clean
 
 setup:
 	@VENV=$(VENV) scripts/setup.sh
@@ -10,11 +10,17 @@ setup:
 run: setup  ## full pipeline on the built-in simulated THOR sequence
 	$(BIN)/slamlab $(ARGS)
 
-test: setup  ## the whole test suite (real-data tests need SLAMLAB_DATA_DIR or ../shared/data)
+lint: setup  ## the layer contract: a lower layer never imports a higher one (pyproject [tool.importlinter])
+	$(BIN)/lint-imports --no-logo
+
+test: lint  ## the layer contract and the whole test suite (real-data tests need SLAMLAB_DATA_DIR or ../shared/data); CI runs this
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+test-fast: lint  ## the edit loop (< 1 min): no slow, real-data or browser tests
+	$(BIN)/python -m pytest -m "not slow and not data and not browser" $(PYTEST_ARGS)
 
 bench: setup  ## speed and accuracy tables (see benchmarks/)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
 
 clean:
-	rm -rf outputs multirun reports/*.html .pytest_cache
+	rm -rf outputs multirun reports/*.html .pytest_cache .import_linter_cache

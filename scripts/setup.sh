@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Create (or reuse) the local virtual environment and install slamlab with its test tools.
+# Create (or reuse) the local virtual environment and install slamlab with its test tools
+# (the `dev` extra: pytest, the launchers, evo, import-linter for `make lint`).
 # Installs the one system library a dependency needs (libusb-1.0 for Open3D) when missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."

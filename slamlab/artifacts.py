@@ -6,12 +6,6 @@ File names and formats are a contract (docs/RUN_DIRECTORY.md).
 
 from __future__ import annotations
 
-import io
-import json
-import os
-import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -19,103 +13,15 @@ import pandas as pd
 
 from slamlab.errors import DataError
 from slamlab.frames import GridImage
-from slamlab.geometry import FloatArray, wrap_angle, yaw_to_quaternion
 
-TMP_MARK = ".partial-"
+# The writers live in slamlab.io (below datasets and texture, which use them too); they are
+# re-exported so a run's files are written through one namespace.
+from slamlab.io.atomic import TMP_MARK, atomic_path, remove_partials, write_bytes, write_json, write_npz, write_text  # noqa: F401
+from slamlab.io.tum import read_tum, tum_text, write_tum  # noqa: F401
 
 # ROS map_server thresholds on P(occupied).
 OCCUPIED_THRESH = 0.65
 FREE_THRESH = 0.196
-
-
-@contextmanager
-def atomic_path(path: Path) -> Iterator[Path]:
-    """Yield a temporary path beside `path`; rename it to `path` only if the block succeeds."""
-    path = Path(path)
-    tmp = path.with_name(f"{TMP_MARK}{os.getpid()}-{path.name}")
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def write_bytes(path: Path, data: bytes) -> None:
-    """Atomically write bytes."""
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
-
-
-def write_text(path: Path, text: str) -> None:
-    """Atomically write UTF-8 text."""
-    write_bytes(path, text.encode("utf-8"))
-
-
-def write_json(path: Path, obj: object) -> None:
-    """Atomically write pretty JSON (NaN written as null so every JSON reader accepts it)."""
-    write_text(path, json.dumps(_json_safe(obj), indent=2, sort_keys=False) + "\n")
-
-
-def _json_safe(obj: object) -> object:
-    if isinstance(obj, dict):
-        return {str(k): _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, (np.floating, float)):
-        f = float(obj)
-        return f if np.isfinite(f) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, np.ndarray):
-        return _json_safe(obj.tolist())
-    return obj
-
-
-def remove_partials(run_dir: Path) -> None:
-    """Delete temporary files a killed process may have left (only this run's folder)."""
-    for p in Path(run_dir).glob(f"{TMP_MARK}*"):
-        p.unlink(missing_ok=True)
-
-
-def tum_text(times: FloatArray, poses: FloatArray) -> str:
-    """TUM trajectory text: `timestamp x y z qx qy qz qw` per line (s, m, unit quaternion).
-
-    Fixed formatting (%.6f time, %.9f values) so identical arrays give identical bytes.
-    """
-    times = np.asarray(times, dtype=np.float64)
-    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-    q = yaw_to_quaternion(poses[:, 2])
-    table = np.column_stack([times, poses[:, 0], poses[:, 1], np.zeros(len(times)), q])
-    buf = io.StringIO()
-    buf.write("# timestamp x y z qx qy qz qw\n")
-    np.savetxt(buf, table, fmt=["%.6f"] + ["%.9f"] * 7)
-    return buf.getvalue()
-
-
-def write_tum(path: Path, times: FloatArray, poses: FloatArray) -> None:
-    """Atomically write a planar trajectory in TUM format."""
-    write_text(path, tum_text(times, poses))
-
-
-def read_tum(path: Path) -> tuple[FloatArray, FloatArray]:
-    """Read a planar TUM file: (times (N,), poses (N, 3) x, y, yaw), yaw from the
-    quaternion's rotation about z. A file that is not TUM raises DataError naming it."""
-    try:
-        with warnings.catch_warnings():  # an empty file is an empty trajectory, not a warning
-            warnings.simplefilter("ignore", UserWarning)
-            table = np.loadtxt(path, comments="#", ndmin=2, dtype=np.float64)
-    except (OSError, ValueError) as exc:
-        raise DataError(path, f"cannot read TUM trajectory ({exc})") from None
-    if table.size == 0:
-        return np.zeros(0), np.zeros((0, 3))
-    if table.shape[1] != 8:
-        raise DataError(path, f"expected 8 columns 'timestamp x y z qx qy qz qw', got {table.shape[1]}")
-    qx, qy, qz, qw = table[:, 4], table[:, 5], table[:, 6], table[:, 7]
-    yaw = np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-    return table[:, 0], np.column_stack([table[:, 1], table[:, 2], wrap_angle(yaw)])
 
 
 def occupancy_probability(log_odds: np.ndarray) -> np.ndarray:
@@ -162,10 +68,23 @@ def write_map(run_dir: Path, grid: GridImage) -> None:
     )
 
 
+def read_logodds(path: Path) -> GridImage:
+    """The one reader of `map_logodds.npz`: `data` (H, W) float32 log-odds, `resolution_m`
+    (m), `origin_xy` (m) as a GridImage. A file without those arrays raises DataError naming it."""
+    need = ("data", "resolution_m", "origin_xy")
+    with np.load(path) as z:
+        missing = [name for name in need if name not in z]
+        if missing:
+            raise DataError(path, f"missing array(s) {', '.join(missing)} (need {', '.join(need)})")
+        data = np.asarray(z["data"], dtype=np.float32)
+        res = float(np.asarray(z["resolution_m"]).reshape(()))
+        origin = np.asarray(z["origin_xy"], dtype=np.float64).reshape(2)
+    return GridImage(data, res, (float(origin[0]), float(origin[1])))
+
+
 def read_map(run_dir: Path) -> GridImage:
-    """Load `map_logodds.npz` back into a GridImage."""
-    with np.load(Path(run_dir) / "map_logodds.npz") as z:
-        return GridImage(z["data"], float(z["resolution_m"]), tuple(float(v) for v in z["origin_xy"]))
+    """A run folder's map (`map_logodds.npz`, see `read_logodds`)."""
+    return read_logodds(Path(run_dir) / "map_logodds.npz")
 
 
 def write_consistency(run_dir: Path, series: dict[str, np.ndarray]) -> None:
@@ -181,13 +100,6 @@ def write_table(path: Path, table: pd.DataFrame) -> None:
         if col in ("t", "t1", "t2"):
             table[col] = table[col].map(lambda v: f"{v:.6f}")
     write_text(Path(path), table.to_csv(index=False, float_format="%.6g"))
-
-
-def write_npz(path: Path, **arrays: np.ndarray) -> None:
-    """Atomically write compressed NumPy arrays (np.load reads them back by name)."""
-    with atomic_path(path) as tmp:
-        with tmp.open("wb") as f:
-            np.savez_compressed(f, **arrays)
 
 
 def write_steps(run_dir: Path, steps: pd.DataFrame) -> None:

@@ -1,7 +1,8 @@
-"""One run, start to finish: load -> SLAM -> evaluate -> texture -> artifacts -> report.
+"""One run, start to finish: load -> SLAM -> evaluate -> texture -> artifacts.
 
 The Hydra app (`slamlab.cli.app`) only resolves the config and the run directory and
-calls `run_pipeline`; tests call it directly with a composed config.
+calls `run_pipeline`, then writes the run's report (the report layer sits above this one:
+`slamlab.cli.app.run_and_report`); tests call either directly with a composed config.
 """
 
 from __future__ import annotations
@@ -252,7 +253,8 @@ def run_texture_stage(seq: Sequence, result: SlamResult, cfg: DictConfig, run_di
 
     Any failure here is reported in metrics and never loses the SLAM results.
     """
-    from slamlab.texture.pipeline import run_texture, save_texture_outputs, save_truth_texture, texture_metrics
+    from slamlab.eval.texture import texture_metrics
+    from slamlab.texture.pipeline import run_texture, save_texture_outputs, save_truth_texture
     from slamlab.texture.samples import SAMPLE_FRAMES, write_samples
 
     occ = artifacts.occupancy_probability(result.log_odds.data)
@@ -362,8 +364,6 @@ def run_pipeline(
         artifacts.remove_partials(run_dir)
         _write_failure(run_dir, exc)
         raise
-    if cfg.get("report", True):
-        _write_report(run_dir)
     _log_summary(metrics)
     return metrics
 
@@ -400,15 +400,6 @@ def _write_failure(run_dir: Path, exc: BaseException) -> None:
         artifacts.write_json(run_dir / "metrics.json", info)
     except OSError:
         pass
-
-
-def _write_report(run_dir: Path) -> None:
-    try:
-        from slamlab.report.run_report import write_run_report
-
-        write_run_report(run_dir)
-    except Exception as exc:  # a report problem must not fail a finished run
-        log.error("could not write report.html: %s", exc)
 
 
 def _log_summary(m: dict) -> None:

@@ -27,3 +27,16 @@ def shared_data() -> Path:
 def sim_cache(tmp_path_factory) -> Path:
     """A cache folder shared by the whole test session (simulated sequences are reused)."""
     return tmp_path_factory.mktemp("slamlab-cache")
+
+
+@pytest.fixture
+def slamlab_app(capsys, monkeypatch):
+    """`slamlab ARGS` called in this process, returning what `subprocess.run` would
+    (`cli_helpers.call_inprocess`): for tests of exit statuses and messages only."""
+    from cli_helpers import call_inprocess
+    from slamlab.cli.app import main
+
+    def run(args: list[str], cwd: Path | None = None, cache: Path | None = None):
+        return call_inprocess(main, "slamlab", args, capsys, monkeypatch, cwd=cwd, cache=cache)
+
+    return run

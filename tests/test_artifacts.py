@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from slamlab import artifacts
+from slamlab.errors import DataError
 from slamlab.frames import GridImage
 
 
@@ -47,8 +48,21 @@ def test_map_files_follow_map_server_convention(tmp_path):
     assert "resolution: 0.050000" in yaml_text
     back = artifacts.read_map(tmp_path)
     np.testing.assert_array_equal(back.data, lo)
+    assert back.data.dtype == np.float32 and back.resolution_m == 0.05
     assert back.origin_xy == (-1.0, 2.0)
-    assert (tmp_path / "map.png").stat().st_size > 0
+    # map.png: grey = 1 - P(occupied), top row = highest y, like the PGM
+    from PIL import Image
+
+    png = np.asarray(Image.open(tmp_path / "map.png").convert("L"))
+    assert png.shape == (4, 6)
+    assert png[3, 0] < 5 and png[0, 5] > 250 and abs(int(png[1, 1]) - 128) < 3  # occupied, free, unknown
+
+
+def test_a_log_odds_file_without_its_arrays_names_the_file_and_the_array(tmp_path):
+    path = tmp_path / "map_logodds.npz"
+    np.savez_compressed(path, data=np.zeros((2, 2), np.float32), origin_xy=np.zeros(2))
+    with pytest.raises(DataError, match=r"map_logodds\.npz: missing array\(s\) resolution_m \(need"):
+        artifacts.read_logodds(path)
 
 
 def test_atomic_write_leaves_nothing_on_failure(tmp_path):

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from slamlab.datasets.carmen import flaser_beam_angles, load_carmen, load_relations
+from slamlab.datasets.carmen import flaser_beam_angles, load_carmen
+from slamlab.datasets.relations import load_relations
 from slamlab.errors import DataError
 from slamlab.eval.relations import match_times, relation_errors
 from slamlab.geometry import se2_between

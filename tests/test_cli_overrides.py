@@ -3,16 +3,9 @@ meant, not Hydra's `+key=value` advice (which would run with the default) or its
 
 from __future__ import annotations
 
-import subprocess
-
 import pytest
 
-from cli_helpers import slamlab_cli
 from slamlab.cli.overrides import check_overrides
-
-
-def slamlab(args: list[str], tmp_path) -> subprocess.CompletedProcess:
-    return slamlab_cli([*args, f"hydra.run.dir={tmp_path / 'r'}"], tmp_path, timeout=120)
 
 
 @pytest.mark.parametrize("args, message", [
@@ -26,8 +19,8 @@ def slamlab(args: list[str], tmp_path) -> subprocess.CompletedProcess:
                                       "choices: image_plane, plane, threshold"),
     (["experiment=grading"], "presets are added with '+': +experiment=grading"),
 ])
-def test_a_typo_is_one_line_naming_what_was_meant(args, message, tmp_path):
-    proc = slamlab(args, tmp_path)
+def test_a_typo_is_one_line_naming_what_was_meant(args, message, tmp_path, slamlab_app):
+    proc = slamlab_app([*args, f"hydra.run.dir={tmp_path / 'r'}"], cwd=tmp_path)
     assert proc.returncode == 2
     assert proc.stderr.strip() == f"slamlab: {message}"
     assert not (tmp_path / "r").exists()  # nothing ran, no folder made

@@ -9,11 +9,14 @@ import signal
 import subprocess
 from pathlib import Path
 
+import pytest
 import yaml
 
 from cli_helpers import slamlab_start
 from slamlab import artifacts
 from slamlab.report.rundir import load_run
+
+pytestmark = pytest.mark.slow  # real processes started together, interrupted, killed; sweeps
 
 QUICK = ["steps.max_scans=300", "texture=none", "report=false", "progress=off", "dataset.duration_s=20"]
 

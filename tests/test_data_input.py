@@ -13,12 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cli_helpers import slamlab_cli
 from slamlab.datasets.calibration import load_kinect_calibration
 from slamlab.datasets.carmen import load_carmen
 from slamlab.datasets.sim.calib import default_calibration, write_camera_params
 from slamlab.errors import DataError
-from slamlab.eval.relations import snap_relations
+from slamlab.datasets.relations import snap_relations
 from slamlab.frames import Relations
 
 N_SCANS = 40
@@ -45,9 +44,16 @@ def room_log(times: list[float] | None = None) -> list[str]:
     return [room_flaser(k, t) for k, t in enumerate(times)]
 
 
-def slamlab(args: list[str], tmp_path: Path, cache: Path | None = None) -> subprocess.CompletedProcess:
+@pytest.fixture
+def slamlab(slamlab_app):
+    """`slamlab ARGS` (quick settings), called in this process: these tests read only the exit
+    status, the messages and the files it writes."""
     quick = ["particles=5", "texture=none", "report=false", "progress=off"]
-    return slamlab_cli([*quick, *args], tmp_path, cache, timeout=600)
+
+    def run(args: list[str], tmp_path: Path, cache: Path | None = None) -> subprocess.CompletedProcess:
+        return slamlab_app([*quick, *args], tmp_path, cache)
+
+    return run
 
 
 def warnings_in(stderr: str) -> list[str]:
@@ -57,7 +63,7 @@ def warnings_in(stderr: str) -> list[str]:
 # ----------------------------------------------------------------------------- bad lines
 
 
-def test_a_log_cut_mid_line_says_it_was_truncated(tmp_path):
+def test_a_log_cut_mid_line_says_it_was_truncated(tmp_path, slamlab):
     lines = room_log()
     cut = "\n".join(lines[:-1]) + "\n" + lines[-1][: len(lines[-1]) // 2]  # no final newline
     (tmp_path / "cut.clf").write_text(cut)
@@ -71,7 +77,7 @@ def test_a_log_cut_mid_line_says_it_was_truncated(tmp_path):
         "dataset.on_bad_line=skip drops bad lines and goes on")
 
 
-def test_skip_drops_bad_lines_with_one_warning_and_runs(tmp_path):
+def test_skip_drops_bad_lines_with_one_warning_and_runs(tmp_path, slamlab):
     lines = room_log()
     lines[11] = lines[11].replace(" 0.000000 ", " x0.0 ", 1)  # garbage in the middle
     lines[20] = room_flaser(20, T0 + DT * 20, ranges=["nan", -1.0, "inf"] + ["2.0"] * 178)
@@ -89,7 +95,7 @@ def test_skip_drops_bad_lines_with_one_warning_and_runs(tmp_path):
     assert json.loads((run / "metrics.json").read_text())["scans"] == N_SCANS - 2
 
 
-def test_skip_is_refused_when_misspelled(tmp_path):
+def test_skip_is_refused_when_misspelled(tmp_path, slamlab):
     (tmp_path / "a.clf").write_text("\n".join(room_log()) + "\n")
     proc = slamlab(["dataset=carmen", f"dataset.path={tmp_path / 'a.clf'}", "dataset.on_bad_line=ignore",
                     f"hydra.run.dir={tmp_path / 'r'}"], tmp_path)
@@ -100,7 +106,7 @@ def test_skip_is_refused_when_misspelled(tmp_path):
 # ----------------------------------------------------------------------------- timestamps
 
 
-def test_repeated_timestamps_are_warned_about(tmp_path):
+def test_repeated_timestamps_are_warned_about(tmp_path, slamlab):
     times = [T0 + DT * k for k in range(N_SCANS)]
     times[10:17] = [times[10]] * 7  # the clock stood still for 7 scans
     (tmp_path / "stuck.clf").write_text("\n".join(room_log(times)) + "\n")
@@ -111,7 +117,7 @@ def test_repeated_timestamps_are_warned_about(tmp_path):
         f"7 scans at {times[10]:.6f}); relations and RGB-D frames cannot be matched to scans by time there"]
 
 
-def test_all_equal_timestamps_are_warned_about(tmp_path):
+def test_all_equal_timestamps_are_warned_about(tmp_path, slamlab):
     (tmp_path / "flat.clf").write_text("\n".join(room_log([T0] * N_SCANS)) + "\n")
     proc = slamlab(["dataset=carmen", f"dataset.path={tmp_path / 'flat.clf'}", f"hydra.run.dir={tmp_path / 'r'}"], tmp_path)
     assert f"all {N_SCANS} scans have the same timestamp {T0:.6f}" in proc.stderr
@@ -125,7 +131,7 @@ def write_relations(path: Path, pairs: list[tuple[float, float]]) -> Path:
     return path
 
 
-def test_relations_rounded_to_10_us_are_matched(tmp_path):
+def test_relations_rounded_to_10_us_are_matched(tmp_path, slamlab):
     times = [T0 + DT * k + 3e-6 for k in range(N_SCANS)]  # stamps with microseconds the file rounds away
     (tmp_path / "room.clf").write_text("\n".join(room_log(times)) + "\n")
     write_relations(tmp_path / "room.relations", [(times[k], times[k + 10]) for k in range(0, 25, 5)])
@@ -136,7 +142,7 @@ def test_relations_rounded_to_10_us_are_matched(tmp_path):
     assert rel["count"] == rel["of_total"] == 5
 
 
-def test_a_relation_far_from_every_scan_names_line_stamp_and_nearest_scan(tmp_path):
+def test_a_relation_far_from_every_scan_names_line_stamp_and_nearest_scan(tmp_path, slamlab):
     (tmp_path / "room.clf").write_text("\n".join(room_log()) + "\n")
     write_relations(tmp_path / "room.relations", [(T0, T0 + 1.0), (T0 + 0.5, T0 + 1.0502)])
     proc = slamlab(["dataset=carmen", f"dataset.path={tmp_path / 'room.clf'}", f"hydra.run.dir={tmp_path / 'r'}"], tmp_path)
@@ -179,7 +185,7 @@ class _RunsCode:
         return (os.system, (f"touch {self.marker}",))
 
 
-def test_a_calibration_pickle_that_would_run_code_is_refused(tmp_path, sim_cache):
+def test_a_calibration_pickle_that_would_run_code_is_refused(tmp_path, sim_cache, slamlab):
     cal = write_camera_params(tmp_path / "cameraParam", default_calibration())
     assert load_kinect_calibration(cal).ir.width == 512  # the plain pickles load
     marker = tmp_path / "pwned"

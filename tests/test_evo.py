@@ -15,6 +15,8 @@ from hydra import compose, initialize_config_module
 
 from slamlab.pipeline import run_pipeline
 
+pytestmark = pytest.mark.slow  # a full pipeline run checked with evo
+
 SHORT = ["dataset.duration_s=12", "particles=10", "dataset.rgbd=false", "texture=none", "report=false"]
 
 

@@ -16,9 +16,9 @@ import pytest
 from hydra import compose, initialize_config_module
 
 from slamlab import artifacts
+from slamlab.cli.app import run_and_report
 from slamlab.errors import ConfigError
 from slamlab.frames import ScanFrame, Sequence
-from slamlab.pipeline import run_pipeline
 from slamlab.report.particle_figures import particle_paths_figure
 from slamlab.report.rundir import load_run
 from slamlab.slam.engine import run_slam, validate_config
@@ -52,13 +52,14 @@ def _line_sequence(n: int, step_m: float, rng_seed: int | None = None) -> Sequen
 def _run(tmp_path: Path, sim_cache: Path, *overrides: str) -> tuple[Path, dict]:
     ov = [*overrides, f"dataset.cache_dir={sim_cache}"]
     run_dir = tmp_path / "run"
-    metrics = run_pipeline(make_cfg(*ov), run_dir, overrides=list(overrides), progress="off")
+    metrics = run_and_report(make_cfg(*ov), run_dir, overrides=list(overrides), progress="off")
     return run_dir, metrics
 
 
 # ---------------------------------------------------------------- step 1: the first scan
 
 
+@pytest.mark.slow
 def test_first_scan_map_holds_exactly_that_scans_hits_and_free_cells(tmp_path, sim_cache):
     run_dir, m = _run(tmp_path, sim_cache, "+experiment=ladder_first_scan", SHORT_SIM)
     # the first processed scan is the last one before the robot moves (scan 100); the run stops there
@@ -149,6 +150,7 @@ def test_predict_spread_after_one_metre_matches_the_configured_noise():
     assert loud.steps["spread_theta_rad"].iloc[k] == pytest.approx(10 * want_th, rel=tol)
 
 
+@pytest.mark.slow
 def test_predict_run_report_draws_every_path_and_the_spread(tmp_path, sim_cache):
     run_dir, m = _run(tmp_path, sim_cache, "+experiment=ladder_predict", SHORT_SIM, "steps.max_scans=300")
     assert m["mode"] == "predict" and m["resample_count"] == 0
@@ -175,6 +177,7 @@ def _table_rows(page: str, table_id: str) -> list[list[str]]:
     return rows
 
 
+@pytest.mark.slow
 def test_three_particle_report_shows_the_weights_the_engine_computed(tmp_path, sim_cache, monkeypatch):
     seen: list[np.ndarray] = []
     real_update = LogSumExpWeighting.update
@@ -206,6 +209,7 @@ def test_three_particle_report_shows_the_weights_the_engine_computed(tmp_path, s
 # ---------------------------------------------------------------- linear_exp on THOR scans
 
 
+@pytest.mark.slow
 def test_linear_exp_overflow_on_thor_scans_is_counted_and_reported(tmp_path, sim_cache):
     # all 1,081 beams (matcher.beam_step=1): the best particle hits 750-1,070 wall cells per
     # scan, past exp's float64 limit at every update (the default beam_step=4 stays near 260)
@@ -235,6 +239,7 @@ def test_record_first_scan_must_be_a_bool(tmp_path, sim_cache):
         _run(tmp_path, sim_cache, "record.first_scan=maybe", SHORT_SIM)
 
 
+@pytest.mark.slow
 def test_ladder_sweep_runs_every_step_into_one_report(tmp_path, sim_cache):
     sweep = tmp_path / "ladder"
     cmd = [sys.executable, "-m", "slamlab.cli.app", "+experiment=ladder", "dataset.duration_s=6", "progress=off",
@@ -255,6 +260,7 @@ def test_ladder_sweep_runs_every_step_into_one_report(tmp_path, sim_cache):
         assert name in page
 
 
+@pytest.mark.slow
 def test_linear_exp_equals_logsumexp_on_thor_scans_without_overflow(tmp_path, sim_cache, monkeypatch):
     # the default beam_step=4 keeps the best correlation near 260 < 709.8: no overflow, and at
     # every update of a THOR run log-sum-exp gives the weights linear_exp computed. (Two whole

@@ -15,6 +15,7 @@ from hydra import compose, initialize_config_module
 
 from cli_helpers import slamlab_cli
 from slamlab import artifacts
+from slamlab.cli.app import run_and_report
 from slamlab.errors import ConfigError
 from slamlab.pipeline import RunDirectoryInUse, run_pipeline
 
@@ -33,13 +34,15 @@ def visible_files(folder: Path) -> list[str]:
 
 @pytest.fixture(scope="module")
 def sim_run(sim_cache, tmp_path_factory) -> Path:
-    """One short simulated run with texture, shared by the checks below."""
+    """One short simulated run with texture and report, shared by the checks below (slow: a
+    fresh session generates the sequence first; `test_same_seed_...` is the quick whole run)."""
     run_dir = tmp_path_factory.mktemp("run") / "r"
     cfg = make_cfg([*SHORT_SIM, f"dataset.cache_dir={sim_cache}"])
-    run_pipeline(cfg, run_dir, overrides=SHORT_SIM, progress="off")
+    run_and_report(cfg, run_dir, overrides=SHORT_SIM, progress="off")  # as `slamlab` runs it
     return run_dir
 
 
+@pytest.mark.slow
 def test_run_directory_holds_every_artifact(sim_run):
     for name in (
         "map.png", "map.pgm", "map.yaml", "map_logodds.npz", "trajectory.tum", "trajectory_causal.tum",
@@ -50,6 +53,7 @@ def test_run_directory_holds_every_artifact(sim_run):
     assert not list(sim_run.glob(f"{artifacts.TMP_MARK}*"))
 
 
+@pytest.mark.slow
 def test_metrics_are_consistent_with_the_files(sim_run):
     m = json.loads((sim_run / "metrics.json").read_text())
     assert m["status"] == "ok" and m["particles"] == 10
@@ -69,6 +73,7 @@ def test_metrics_are_consistent_with_the_files(sim_run):
     assert m["texture"]["status"] == "ok" and m["texture"]["covered_area_m2"] > 1.0
 
 
+@pytest.mark.slow
 def test_manifest_can_reproduce_the_run(sim_run):
     man = json.loads((sim_run / "manifest.json").read_text())
     assert man["seed"] == 0 and man["config"]["particles"] == 10
@@ -113,6 +118,7 @@ def test_a_folder_claimed_by_a_running_run_is_refused(tmp_path):
     assert visible_files(tmp_path / "r") == []
 
 
+@pytest.mark.slow
 def test_a_finished_run_is_never_overwritten(sim_run):
     before = (sim_run / "trajectory.tum").read_bytes()
     with pytest.raises(RunDirectoryInUse):
@@ -137,22 +143,24 @@ def _cli(args: list[str], cwd: Path, cache: Path) -> subprocess.CompletedProcess
     return slamlab_cli(args, cwd, cache, timeout=600)
 
 
-def test_cli_bad_input_is_one_clear_line(tmp_path, sim_cache):
+def test_cli_bad_input_is_one_clear_line(tmp_path, sim_cache, slamlab_app):
     missing = tmp_path / "nowhere.clf"
-    proc = _cli(["dataset=carmen", f"dataset.path={missing}", f"hydra.run.dir={tmp_path / 'r'}"], tmp_path, sim_cache)
+    proc = slamlab_app(["dataset=carmen", f"dataset.path={missing}", f"hydra.run.dir={tmp_path / 'r'}"], tmp_path, sim_cache)
     assert proc.returncode == 2
     assert str(missing) in proc.stderr
     assert "Traceback" not in proc.stderr
-    proc = _cli(["resampler=nonesuch"], tmp_path, sim_cache)
+    proc = slamlab_app(["resampler=nonesuch"], tmp_path, sim_cache)
     assert proc.returncode != 0 and "resampler" in proc.stderr and "Traceback" not in proc.stderr
 
 
-def test_cli_refuses_a_used_run_dir(sim_run, tmp_path, sim_cache):
-    proc = _cli([f"hydra.run.dir={sim_run}"], tmp_path, sim_cache)
+@pytest.mark.slow
+def test_cli_refuses_a_used_run_dir(sim_run, tmp_path, sim_cache, slamlab_app):
+    proc = slamlab_app([f"hydra.run.dir={sim_run}"], tmp_path, sim_cache)
     assert proc.returncode == 2 and "never overwrites" in proc.stderr
     assert json.loads((sim_run / "metrics.json").read_text())["status"] == "ok"
 
 
+@pytest.mark.slow
 def test_verify_says_identical_then_finds_a_tampered_line(tmp_path, sim_cache):
     run = tmp_path / "run"
     # texture on (as in the default run and the grading preset): its timings must not count,

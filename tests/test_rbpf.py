@@ -49,6 +49,7 @@ def test_course_filter_reproduces_the_trajectory_from_before_the_filter_group(sh
     assert res.extras["filter"] == "course"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("matcher", ["likelihood", "grid"])
 def test_course_filter_on_the_room_is_unchanged_and_is_what_old_configs_run(matcher):
     from omegaconf import OmegaConf
@@ -66,6 +67,7 @@ def test_course_filter_on_the_room_is_unchanged_and_is_what_old_configs_run(matc
     assert res_old.trajectory.tobytes() == res.trajectory.tobytes()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("matcher", ["likelihood", "grid"])
 def test_rbpf_same_seed_gives_identical_bytes_on_one_or_two_threads(matcher):
     seq = _room_sequence()
@@ -87,6 +89,7 @@ def test_rbpf_same_seed_gives_identical_bytes_on_one_or_two_threads(matcher):
     assert c.trajectory.tobytes() != a.trajectory.tobytes()
 
 
+@pytest.mark.slow
 def test_rbpf_beats_odometry_and_reports_its_maps():
     seq = _room_sequence()
     res = run_slam(seq, _cfg("filter=rbpf", "particles=20", "matcher=likelihood"))
@@ -106,6 +109,7 @@ def test_rbpf_beats_odometry_and_reports_its_maps():
     assert ex["map_tiles_taken"] >= ex["map_tiles"]
 
 
+@pytest.mark.slow
 def test_rbpf_final_map_is_the_best_particles_own_map():
     """The map handed back is exactly the one built along the returned (smoothed) path: a
     single map replaying the scans at the processed steps from those poses equals it."""
@@ -145,6 +149,7 @@ def test_rbpf_step_scale_narrows_the_prior_for_short_steps_only():
         RaoBlackwellFilter(step_ref_m=-1.0, step_ref_rad=0.2)
 
 
+@pytest.mark.slow
 def test_rbpf_short_steps_keep_the_robot_closer_to_odometry():
     """The room's odometry is 5 % long: a narrower prior (short steps against a long
     reference) lets the matcher correct less per step, so the path stays nearer odometry."""

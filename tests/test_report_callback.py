@@ -9,6 +9,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
 from omegaconf import OmegaConf
 
 from slamlab.report.callback import SweepReportCallback
@@ -16,6 +17,7 @@ from slamlab.report.callback import SweepReportCallback
 TESTS = Path(__file__).resolve().parent
 
 
+@pytest.mark.slow
 def test_callback_writes_report_after_real_multirun(tmp_path: Path) -> None:
     conf = tmp_path / "conf"
     conf.mkdir()

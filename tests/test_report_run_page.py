@@ -96,6 +96,7 @@ def test_frame_image_places_a_snapshot_in_the_window() -> None:
     assert img[0, 0] == 128 and img[1, 1] == 255 and img[2, 2] == 0 and img[2, 1] == 255 and img[3, 3] == 128
 
 
+@pytest.mark.slow
 def test_replay_keeps_its_frames_inside_the_page_budget(tmp_path: Path, monkeypatch) -> None:
     from slamlab.report import replay_section as rs
     from slamlab.report.rundir import load_run
@@ -178,6 +179,7 @@ def test_intel_run_writes_per_relation_errors_that_match_its_metrics(intel_run: 
 
 
 @pytest.mark.slow
+@pytest.mark.browser
 @needs_browser
 @pytest.mark.parametrize("which", ["sim", "intel"])
 def test_run_page_in_chromium_has_errors_over_time_ground_frames_and_a_working_replay(which: str, request) -> None:

@@ -1,13 +1,17 @@
-"""Both reports open in headless Chromium (no network) and render to a screenshot.
+"""Both reports open in headless Chromium (no network), render to a screenshot that is not
+blank, and show what they should: their sections, decoded images, the run's error and the
+sweep's failed run.
 Skips when Chromium is not installed (apt-get install -y chromium), unless
 SLAMLAB_REQUIRE_BROWSER=1 (set by .ci/run, which installs it): then it fails."""
 
 from __future__ import annotations
 
 import importlib.util
+import json
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from report_fixtures import make_sweep, particles_seed_grid
@@ -20,6 +24,7 @@ _spec.loader.exec_module(shots)
 
 pytestmark = [
     pytest.mark.slow,
+    pytest.mark.browser,
     pytest.mark.skipif(
         shots.find_browser() is None and os.environ.get("SLAMLAB_REQUIRE_BROWSER") != "1",
         reason="Chromium not installed",
@@ -27,11 +32,34 @@ pytestmark = [
 ]
 
 
+def _not_blank(png: Path) -> None:
+    """A rendered page, not an empty or single-colour one: many colours, much ink."""
+    from PIL import Image
+
+    img = np.asarray(Image.open(png).convert("RGB"))
+    assert len(np.unique(img.reshape(-1, 3), axis=0)) > 100
+    assert np.mean(np.any(img < 200, axis=2)) > 0.02  # more than 2 % of pixels are not near-white
+
+
 def test_reports_render_in_chromium(tmp_path: Path) -> None:
     root = tmp_path / "sweep"
     runs = make_sweep(root, particles_seed_grid([5, 10], [0]), ["particles=5,10"], failures={1: "metrics"}, n_steps=60)
-    run_png = shots.screenshot(write_run_report(runs[0]), tmp_path / "run.png", 1200, 1600)
-    sweep_png = shots.screenshot(build_sweep_report([root], root), tmp_path / "sweep.png", 1200, 1600)
-    for png in (run_png, sweep_png):
-        data = png.read_bytes()
-        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000  # a real page, not a blank one
+    run_page, sweep_page = write_run_report(runs[0]), build_sweep_report([root], root)
+    for page, name in ((run_page, "run.png"), (sweep_page, "sweep.png")):
+        png = shots.screenshot(page, tmp_path / name, 1200, 1600)
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        _not_blank(png)
+
+    # what a reader sees, asked from inside Chromium once every image has loaded
+    run = shots.page_facts(run_page, 1200)
+    assert run["broken"] == [] and run["images"] >= 4
+    assert {"summary", "map", "errors", "filter", "metrics"} <= set(run["sections"])
+    assert run["section_images"]["map"] == 1 and run["section_images"]["errors"] == 1
+    rmse = json.loads((runs[0] / "metrics.json").read_text())["trajectory"]["rmse_m"]
+    assert f"{rmse:.4f}" in run["text"] and "ATE RMSE (m)" in run["text"]
+
+    sweep = shots.page_facts(sweep_page, 1200)
+    assert sweep["broken"] == [] and sweep["images"] >= 4
+    assert sweep["sections"][0] == "verdict" and {"runs", "failed", "maps"} <= set(sweep["sections"])
+    assert {"run", "status", "particles", "ATE RMSE (m)"} <= set(sweep["headers"])
+    assert "2 runs (1 ok, 1 failed or incomplete)" in sweep["text"]

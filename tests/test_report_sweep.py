@@ -100,6 +100,7 @@ def test_plots_aggregates_and_config_diff(built) -> None:
     assert page.count("data:image/png;base64,") >= 4  # param plot, overlay, map grid, N_eff
 
 
+@pytest.mark.slow
 def test_cli_combines_sweeps_and_reports_errors(sweep: Path, tmp_path: Path, monkeypatch, capsys) -> None:
     other = tmp_path / "multirun" / "2025-01-02" / "09-00-00-000000"
     make_sweep(other, particles_seed_grid([100], [0]), ["particles=100", "seed=0"], n_steps=100)

@@ -152,6 +152,7 @@ def test_wall_time_flagged_when_runs_overlap_or_wait_for_cores(tmp_path: Path) -
     assert 'id="runtime-note"' in page
 
 
+@pytest.mark.slow
 def test_report_over_killed_interrupted_and_mixed_runs_warns_nothing(tmp_path: Path, caplog, capsys) -> None:
     """slamlab-report over runs of two different sweeps, a killed one (no metrics), an
     interrupted one and a lone run without ground truth: no numpy warnings, no section

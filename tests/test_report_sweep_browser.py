@@ -21,7 +21,7 @@ import test_report_screenshot as screenshot_tests
 from cli_helpers import sweep_cli
 
 shots = screenshot_tests.shots  # benchmarks/screenshot_reports.py: the Chromium driver
-pytestmark = screenshot_tests.pytestmark  # slow; skipped without Chromium unless required
+pytestmark = screenshot_tests.pytestmark  # slow, browser; skipped without Chromium unless required
 
 CONFIGS = [(p, r) for p in (4, 8) for r in ("systematic", "residual")]
 

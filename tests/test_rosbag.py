@@ -5,9 +5,6 @@ interpolation, topic choice and range limits, and bad input."""
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -238,13 +235,11 @@ def test_not_a_bag(tmp_path):
         load_rosbag(tmp_path / "missing.bag")
 
 
-def test_cli_bad_bag_is_one_clear_line(tmp_path):
+def test_cli_bad_bag_is_one_clear_line(tmp_path, slamlab_app):
     text = tmp_path / "notes.bag"
     text.write_text("hello\n")
-    env = {**os.environ, "MPLBACKEND": "Agg"}
-    proc = subprocess.run([sys.executable, "-m", "slamlab.cli.app", "+experiment=lidar2d", "dataset=rosbag",
-                           f"dataset.path={text}", f"hydra.run.dir={tmp_path / 'r'}"],
-                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)  # fmt: skip
+    proc = slamlab_app(["+experiment=lidar2d", "dataset=rosbag", f"dataset.path={text}", f"hydra.run.dir={tmp_path / 'r'}"],
+                       cwd=tmp_path)
     assert proc.returncode == 2
     assert f"{text}: not a readable ROS bag" in proc.stderr
     assert "Traceback" not in proc.stderr

@@ -14,9 +14,9 @@ import scipy.io
 from slamlab import robot
 from slamlab.datasets.sim import SimParams, generate_atomic, load_sim
 from slamlab.datasets.sim import generate as gen
-from slamlab.datasets.sim.sensors import BEAM_ANGLES, body_to_world
+from slamlab.datasets.sim.sensors import BEAM_ANGLES
 from slamlab.frames import Sequence
-from slamlab.geometry import transform_points, wrap_angle
+from slamlab.geometry import body_to_world, transform_points, wrap_angle
 
 SHORT = dict(duration_s=12.0, label_every=2)
 
@@ -138,7 +138,7 @@ def test_beams_hit_the_floor_when_the_head_pitches_down(seq: Sequence, states: d
     def world_z(i: int) -> tuple[np.ndarray, np.ndarray]:
         s = seq.scans[i]
         x, y, th = states["pose"][i]
-        T = body_to_world(x, y, th, states["roll"][i], states["pitch"][i]) @ robot.lidar_to_body(states["neck_yaw"][i], states["head_pitch"][i])
+        T = body_to_world(x, y, th, states["roll"][i], states["pitch"][i], robot.COM_HEIGHT_M) @ robot.lidar_to_body(states["neck_yaw"][i], states["head_pitch"][i])
         r = s.ranges.astype(np.float64)
         pts = np.stack([r * np.cos(BEAM_ANGLES), r * np.sin(BEAM_ANGLES), np.zeros_like(r)], axis=1)
         return transform_points(T, pts)[:, 2], s.valid
@@ -171,7 +171,7 @@ def test_ground_labels_agree_with_depth_and_colour(seq: Sequence, folder: Path, 
         i = int(np.argmin(np.abs(t_scan - fr.t)))
         assert abs(t_scan[i] - fr.t) < 1e-6  # Kinect frames fall on scan instants
         x, y, th = states["pose"][i]
-        T = body_to_world(x, y, th, states["roll"][i], states["pitch"][i]) @ fr.camera_to_body
+        T = body_to_world(x, y, th, states["roll"][i], states["pitch"][i], robot.COM_HEIGHT_M) @ fr.camera_to_body
         v, u = np.nonzero(fr.depth_m > 0)
         z = fr.depth_m[v, u].astype(np.float64)
         p_ir = np.stack([(u - calib.ir.cc[0]) / calib.ir.fc[0] * z, (v - calib.ir.cc[1]) / calib.ir.fc[1] * z, z], axis=1)

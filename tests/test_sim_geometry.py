@@ -7,11 +7,12 @@ import pytest
 
 from slamlab import robot
 from slamlab.datasets.sim.calib import sim_calibration
-from slamlab.datasets.sim.kinect import pixel_rays, render_depth, rgb_to_ir, visible_boxes
+from slamlab.datasets.sim.kinect import camera_rays, render_depth, rgb_to_ir, visible_boxes
 from slamlab.datasets.sim.raycast import HIT_FLOOR, cast_ray, cast_ray_reference
-from slamlab.datasets.sim.sensors import BEAM_ANGLES, body_to_world, sensor_poses, simulate_scans
+from slamlab.datasets.sim.sensors import BEAM_ANGLES, sensor_poses, simulate_scans
 from slamlab.datasets.sim.trajectory import simulate_motion
 from slamlab.datasets.sim.world import build_world, occupancy_grid
+from slamlab.geometry import body_to_world
 
 NO_CYL = np.zeros((0, 4))
 
@@ -84,7 +85,7 @@ def test_kinect_depth_to_a_wall_and_rgb_baseline() -> None:
     cam = sensor_poses(state, "camera")[0]
     # camera optical axis is body +x, image x to the right (-y), image y down (-z)
     np.testing.assert_allclose(cam[:3, :3], robot.HEAD_R_CAMERA, atol=1e-12)
-    depth, floor = render_depth(cam, calib.ir, pixel_rays(calib.ir), wall_at(4.0, height=6.0), NO_CYL, np.random.default_rng(0), noise_mm=0.0)
+    depth, floor = render_depth(cam, calib.ir, camera_rays(calib.ir), wall_at(4.0, height=6.0), NO_CYL, np.random.default_rng(0), noise_mm=0.0)
     assert depth.shape == (calib.ir.height, calib.ir.width)
     wall_px = depth[: calib.ir.height // 3]  # upper third: the wall, not the floor
     assert np.all(wall_px == 4000)
@@ -96,7 +97,7 @@ def test_kinect_depth_to_a_wall_and_rgb_baseline() -> None:
 def test_frustum_culling_is_conservative() -> None:
     world = build_world(0)
     calib = sim_calibration(0.25)
-    rays = pixel_rays(calib.ir)
+    rays = camera_rays(calib.ir)
     motion = simulate_motion(0, 30.0, world.loop_min, world.loop_max)
     state = motion.sample(np.arange(0.5, 30.0, 1.5))
     for cam in sensor_poses(state, "camera"):
@@ -135,11 +136,15 @@ def test_world_layout_and_occupancy() -> None:
 
 def test_body_to_world_matches_the_course_chain() -> None:
     x, y, th, roll, pitch, ny, hp = 1.0, -2.0, 0.7, 0.03, -0.02, 0.4, 0.3
-    T = body_to_world(x, y, th, roll, pitch) @ robot.lidar_to_body(ny, hp)
+    T = body_to_world(x, y, th, roll, pitch, robot.COM_HEIGHT_M) @ robot.lidar_to_body(ny, hp)
     from slamlab.geometry import rot_x, rot_y, rot_z, trans
 
     course = trans(x, y, 0.93) @ rot_z(th) @ rot_y(pitch) @ rot_x(roll) @ trans(z=0.33) @ rot_z(ny) @ rot_y(hp) @ trans(z=0.15)
     np.testing.assert_allclose(T, course, atol=1e-12)
+    # the simulator's lidar poses go through the same chain
+    state = {"pose": np.array([[x, y, th]]), "roll": np.array([roll]), "pitch": np.array([pitch]),
+             "neck_yaw": np.array([ny]), "head_pitch": np.array([hp])}
+    np.testing.assert_allclose(sensor_poses(state, "lidar")[0], course, atol=1e-12)
 
 
 def test_world_scale_sets_the_building_size():

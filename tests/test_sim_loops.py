@@ -20,6 +20,8 @@ from slamlab.datasets.sim import generate as gen
 from slamlab.datasets.sim.generate import params_record, simulate_truth
 from slamlab.datasets.sim.world import build_world, occupancy_grid
 
+pytestmark = pytest.mark.slow  # generates the 176 m loops world and its walks
+
 PRESET = Path(slamlab.__file__).parent / "conf" / "experiment" / "sim_loops.yaml"
 
 

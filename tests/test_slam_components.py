@@ -186,14 +186,37 @@ def test_motion_models_no_noise_when_standing_still():
         np.testing.assert_allclose(m.sample(poses, np.zeros(3), rng), poses, atol=1e-12)
 
 
-def test_motion_models_follow_the_increment():
+def _forward_step_spread(model, step_m: float, n: int = 20000) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and spread (std of world x, y, theta) of `n` particles facing +y after one
+    forward odometry step of `step_m` metres: world y is along track, world x across."""
     rng = np.random.Generator(np.random.PCG64(0))
-    poses = np.zeros((4000, 3))
-    poses[:, 2] = np.pi / 2  # facing +y: a forward step of 1 m lands at y = 1
-    for m in (CourseMotion(sigma_xy_m=0.01, sigma_theta_rad=0.01), Odometry4Motion(0.01, 0.001, 0.01, 0.001)):
-        out = m.sample(poses, np.array([1.0, 0.0, 0.0]), rng)
-        np.testing.assert_allclose(out.mean(axis=0), [0.0, 1.0, np.pi / 2], atol=0.01)
-        assert out[:, 1].std() > 0  # noisy
+    poses = np.zeros((n, 3))
+    poses[:, 2] = np.pi / 2
+    out = model.sample(poses, np.array([step_m, 0.0, 0.0]), rng)
+    return out.mean(axis=0), out.std(axis=0)
+
+
+@pytest.mark.parametrize("step_m", [0.5, 1.0])
+def test_course_motion_spread_per_metre_is_the_configured_sigma(step_m):
+    # linear growth: sigma per `per_distance_m` of travel, i.e. sigma * step / per_distance_m
+    m = CourseMotion(sigma_xy_m=0.01, sigma_theta_rad=0.02, per_distance_m=0.1, per_angle_rad=0.1)
+    mean, spread = _forward_step_spread(m, step_m)
+    k = step_m / 0.1
+    np.testing.assert_allclose(mean, [0.0, step_m, np.pi / 2], atol=3 * 0.02 * k / np.sqrt(20000) + 1e-3)
+    # 20000 samples: the std of a std is ~0.5 %; 3 % leaves room and catches a wrong scale
+    np.testing.assert_allclose(spread, [0.01 * k, 0.01 * k, 0.02 * k], rtol=0.03)
+
+
+@pytest.mark.parametrize("step_m", [0.5, 1.0])
+def test_odometry4_spread_per_metre_follows_the_alphas(step_m):
+    # a straight step: rot1 = rot2 = 0, so trans varies with sqrt(alpha3) per metre and each
+    # turn with sqrt(alpha2) per metre; across track the position moves by trans * rot1
+    a1, a2, a3, a4 = 0.05, 0.001, 0.01, 0.02
+    mean, spread = _forward_step_spread(Odometry4Motion(a1, a2, a3, a4), step_m)
+    np.testing.assert_allclose(mean, [0.0, step_m, np.pi / 2], atol=2e-3)
+    s_trans, s_rot = np.sqrt(a3) * step_m, np.sqrt(a2) * step_m
+    want = [step_m * s_rot, s_trans, np.hypot(s_rot, s_rot)]  # across (x), along (y), heading
+    np.testing.assert_allclose(spread, want, rtol=0.03)
 
 
 # ---------------------------------------------------------------- correlation on a known map

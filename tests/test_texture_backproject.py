@@ -5,16 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from slamlab.camera import distort_normalized, scaled_intrinsics, undistort_normalized
 from slamlab.datasets.calibration import load_kinect_calibration
 from slamlab.datasets.sim.calib import default_calibration
 from slamlab.frames import CameraIntrinsics
-from slamlab.texture.backproject import (
-    Backprojector,
-    backproject,
-    distort_normalized,
-    scaled_intrinsics,
-    undistort_normalized,
-)
+from slamlab.texture.backproject import Backprojector, backproject
 
 
 def _plane_depth(intr: CameraIntrinsics, n: np.ndarray, c: float, distorted: bool) -> np.ndarray:

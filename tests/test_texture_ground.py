@@ -1,8 +1,10 @@
 """Ground detectors: built from conf/ground/*.yaml, precision/recall on labelled frames.
 
-Floors stated here (synthetic frames: a floor, a wall, 2 mm depth noise, gait-free pose):
-every detector reaches precision >= 0.95 and recall >= 0.95. The only misses are the wall's
-bottom few centimetres, which are within any sensible floor tolerance.
+The frames are rendered by the simulator (`slamlab.datasets.sim.kinect`: its own ray caster
+and floor labels), not by the texture code under test. Floors stated here (a floor, a wall,
+2 mm depth noise in whole millimetres as the Kinect reports, gait-free pose): every detector
+reaches precision >= 0.95 and recall >= 0.95. The only misses are the wall's bottom few
+centimetres, which are within any sensible floor tolerance.
 """
 
 from __future__ import annotations
@@ -13,11 +15,13 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from slamlab.datasets.sim.calib import default_calibration
+from slamlab.datasets.sim.calib import sim_calibration
+from slamlab.datasets.sim.kinect import camera_rays, render_depth
 from slamlab.errors import ConfigError
-from slamlab.eval.texture import DetectionCounts
+from slamlab.geometry import body_to_world
 from slamlab.robot import COM_HEIGHT_M, camera_to_body
 from slamlab.texture.backproject import Backprojector
+from slamlab.texture.detection import DetectionCounts
 from slamlab.texture.ground import (
     GroundQuery,
     ImagePlaneGround,
@@ -26,8 +30,7 @@ from slamlab.texture.ground import (
     image_plane_coefficients,
     ransac_plane,
 )
-from slamlab.texture.pipeline import body_to_world, build_detector
-from slamlab.texture.synthetic import checker_texture, render_frame, scaled_calibration
+from slamlab.texture.pipeline import build_detector
 
 CONF = Path(__file__).resolve().parents[1] / "slamlab" / "conf" / "ground"
 DETECTORS = ["threshold", "plane", "image_plane"]
@@ -35,15 +38,26 @@ PRECISION_FLOOR = 0.95
 RECALL_FLOOR = 0.95
 
 
+NO_PEOPLE = np.zeros((0, 4))
+
+
+def sim_frame(calib, T_world_ir: np.ndarray, wall_x_m: float, seed: int, noise_mm: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Depth (H, W) in metres and the simulator's floor labels for the IR camera at
+    `T_world_ir`, in a world of a floor and a 2.5 m wall whose near face is x = `wall_x_m`."""
+    wall = np.array([[wall_x_m, -10.0, wall_x_m + 0.1, 10.0, 2.5]])  # [x0, y0, x1, y1, height]
+    depth_mm, floor = render_depth(T_world_ir, calib.ir, camera_rays(calib.ir), wall, NO_PEOPLE,
+                                   np.random.default_rng(seed), noise_mm=noise_mm)
+    return depth_mm / 1000.0, floor
+
+
 @pytest.fixture(scope="module")
 def frames():
-    calib = scaled_calibration(default_calibration(), 0.5)
-    tex = checker_texture()
+    calib = sim_calibration(0.5)
     out = []
     for i, (pitch, yaw, wall) in enumerate([(0.6, 0.0, 2.5), (0.35, 0.3, 3.0), (0.8, -0.2, 1.8), (0.2, 0.0, 4.0)]):
-        T = body_to_world(np.array([0.1 * i, -0.2, 0.2 * i]), COM_HEIGHT_M) @ camera_to_body(yaw, pitch)
+        T = body_to_world(0.1 * i, -0.2, 0.2 * i, height_m=COM_HEIGHT_M) @ camera_to_body(yaw, pitch)
         # The wall is placed in the world frame, ahead of the robot.
-        depth, rgb, label = render_frame(calib, T, tex, wall_x_m=0.1 * i + wall, noise_m=0.002, seed=i)
+        depth, label = sim_frame(calib, T, wall_x_m=0.1 * i + wall, seed=i)
         pts = Backprojector(calib.ir)(depth)
         out.append((GroundQuery(pts, T, calib.ir), label[pts.v, pts.u]))
     return out
@@ -83,11 +97,12 @@ def test_threshold_uses_world_height(frames):
 
 
 def test_plane_rejects_a_wall_only_view():
-    calib = scaled_calibration(default_calibration(), 0.25)
+    calib = sim_calibration(0.25)
     # Head level, looking straight at a wall 1 m away: the only plane is vertical.
-    T = body_to_world(np.zeros(3), COM_HEIGHT_M) @ camera_to_body(0.0, 0.0)
-    depth, _, label = render_frame(calib, T, checker_texture(), wall_x_m=1.0, max_depth_m=4.5)
+    T = body_to_world(0.0, 0.0, 0.0, height_m=COM_HEIGHT_M) @ camera_to_body(0.0, 0.0)
+    depth, label = sim_frame(calib, T, wall_x_m=1.0, seed=0, noise_mm=0.0)
     depth[label] = 0.0  # keep only the wall
+    assert np.count_nonzero(depth) > 1000  # the wall fills most of the view
     query = GroundQuery(Backprojector(calib.ir)(depth), T, calib.ir)
     det = PlaneGround()
     assert not det(query).any()

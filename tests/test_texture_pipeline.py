@@ -12,6 +12,7 @@ from omegaconf import OmegaConf
 
 from slamlab.datasets.sim.calib import default_calibration
 from slamlab.errors import ConfigError, DataError
+from slamlab.eval.texture import texture_metrics
 from slamlab.frames import GridImage
 from slamlab.texture.pipeline import (
     TextureResult,
@@ -19,7 +20,6 @@ from slamlab.texture.pipeline import (
     run_texture,
     save_texture_outputs,
     texture_enabled,
-    texture_metrics,
 )
 from slamlab.texture.synthetic import scaled_calibration, synthetic_sequence
 

@@ -168,6 +168,7 @@ def _corridor_scan(half_width_m: float = 1.5, reach_m: float = 4.0, m: int = 120
     return pts, np.zeros(2)
 
 
+@pytest.mark.slow
 def test_memory_of_a_long_diagonal_walk_grows_with_the_distance_not_the_area():
     """A walk along a diagonal corridor: a dense grid would grow with the bounding box
     (distance squared), the tiles only where scans land (distance)."""

@@ -16,6 +16,8 @@ from PIL import Image
 from cli_helpers import slamlab_cli, verify_cli
 from slamlab.run_compare import compare_runs
 
+pytestmark = pytest.mark.slow  # runs and re-runs the pipeline through the CLI
+
 SHORT = ["dataset.duration_s=20", "particles=10", "steps.max_scans=200", "report=false"]
 
 

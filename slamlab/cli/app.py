@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import hydra
@@ -29,6 +30,25 @@ from slamlab.pipeline import (
 )
 
 log = logging.getLogger("slamlab")
+
+
+def run_and_report(
+    cfg: DictConfig,
+    run_dir: Path,
+    overrides: list[str] | None = None,
+    progress: Callable[[int, int], None] | str | None = "auto",
+) -> dict:
+    """`run_pipeline` (same arguments and metrics), then `report.html` in `run_dir` when
+    `cfg.report` is on. A report problem is logged and never fails a finished run."""
+    metrics = run_pipeline(cfg, run_dir, overrides=overrides, progress=progress)
+    if cfg.get("report", True):
+        try:
+            from slamlab.report.run_report import write_run_report
+
+            write_run_report(Path(run_dir))
+        except Exception as exc:  # a report problem must not fail a finished run
+            log.error("could not write report.html: %s", exc)
+    return metrics
 
 
 def _limit_threads_for_parallel_jobs() -> None:
@@ -53,7 +73,7 @@ def _hydra_main(cfg: DictConfig) -> None:
         _limit_threads_for_parallel_jobs()  # joblib, submitit, ray: jobs run side by side
     run_dir = Path(hc.runtime.output_dir)
     try:
-        run_pipeline(cfg, run_dir, overrides=list(hc.overrides.task), progress=cfg.get("progress", "auto"))
+        run_and_report(cfg, run_dir, overrides=list(hc.overrides.task), progress=cfg.get("progress", "auto"))
         log.info("outputs in %s%s", run_dir, " (open report.html)" if cfg.get("report", True) else "")
     except RunInterrupted as exc:
         print(exc, file=sys.stderr)

@@ -33,22 +33,19 @@ Conventions, checked on the Intel and ACES logs of the Freiburg benchmark:
 
 from __future__ import annotations
 
-import bz2
-import gzip
-import lzma
 import re
 import warnings
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from slamlab.datasets.bad_lines import BadLines
+from slamlab.datasets.relations import DEFAULT_RELATIONS_TOL_S, relations_for_log
 from slamlab.errors import DataError
-from slamlab.eval.relations import DEFAULT_RELATIONS_TOL_S, snap_relations
-from slamlab.frames import Relations, ScanFrame, Sequence
+from slamlab.frames import ScanFrame, Sequence
 from slamlab.geometry import rot_z, se2_between, trans, wrap_angle
+from slamlab.io.compressed import read_text
 
 _FLASER_TAIL = (
     "x", "y", "theta", "odom_x", "odom_y", "odom_theta",
@@ -64,7 +61,6 @@ _RL1_TAIL = (
     "tv", "rv", "forward_safety_dist", "side_safety_dist", "turn_axis",
     "ipc_timestamp", "ipc_hostname", "logger_timestamp",
 )  # fmt: skip
-_RELATION_FIELDS = ("t1", "t2", "x", "y", "z", "roll", "pitch", "yaw")
 
 _MAX_RANGE_PARAM = re.compile(r"^(robot|laser)_front_?laser_max(imum)?(_?range)?$")
 _OFFSET_PARAM = "robot_frontlaser_offset"
@@ -78,53 +74,8 @@ _PLATEAU_FRACTION = 1e-3
 _OFFSET_NOISE = 1e-3
 _OFFSET_SPREAD = 1e-2
 
-_MAGIC = {b"\x1f\x8b": "gzip", b"BZh": "bzip2", b"\xfd7zXZ\x00": "xz"}
-_SUFFIX_KIND = {".gz": "gzip", ".bz2": "bzip2", ".xz": "xz"}
-_OPENERS = {"gzip": gzip.open, "bzip2": bz2.open, "xz": lzma.open}
-
 
 # ----------------------------------------------------------------------------- file access
-
-
-def _sniff(head: bytes) -> str:
-    for magic, kind in _MAGIC.items():
-        if head.startswith(magic):
-            return kind
-    return "plain"
-
-
-def _read_text(path: Path) -> str:
-    """The whole log as text, decompressed by magic bytes (the suffix must agree)."""
-    if not path.exists():
-        raise DataError(path, "file not found")
-    if not path.is_file():
-        raise DataError(path, "not a regular file")
-    with path.open("rb") as f:
-        head = f.read(6)
-    kind = _sniff(head)
-    named = _SUFFIX_KIND.get(path.suffix.lower(), "plain")
-    if named != "plain" and kind != named:
-        raise DataError(path, f"named {path.suffix} but is not {named} data (starts with {head!r})")
-    if kind == "plain":
-        data = path.read_bytes()
-    else:
-        chunks: list[bytes] = []
-        lines_done = 0
-        try:
-            with _OPENERS[kind](path, "rb") as f:
-                while chunk := f.read(1 << 22):
-                    chunks.append(chunk)
-                    lines_done += chunk.count(b"\n")
-        except (EOFError, OSError, zlib.error, lzma.LZMAError) as exc:
-            raise DataError(
-                path,
-                f"{kind} stream is truncated or corrupt ({exc}); "
-                f"{lines_done} complete lines were read before it broke",
-                record=f"line {lines_done + 1}",
-            ) from None
-        data = b"".join(chunks)
-    # latin-1 never fails to decode; stray bytes then surface as "not a number" errors.
-    return data.decode("latin-1")
 
 
 def _log_stem(path: Path) -> str:
@@ -139,68 +90,6 @@ def _log_stem(path: Path) -> str:
             name = name[: -len(suffix)]
             break
     return name
-
-
-# ----------------------------------------------------------------------------- relations
-
-
-def load_relations(path: str | Path) -> Relations:
-    """Read a benchmark relations file: lines `t1 t2 x y z roll pitch yaw` (s, m, rad).
-
-    Returns `Relations(t1, t2, rel=(x, y, yaw), path)`; z, roll and pitch (0 in the
-    benchmark) are read but dropped. Blank lines and `#` comments are skipped. Any other
-    line that is not 8 finite numbers raises DataError naming the line and field.
-    """
-    return _read_relations(Path(path))[0]
-
-
-def relations_for_log(
-    log_path: Path, stem: str, relations: str | Path | None, times: np.ndarray, tol_s: float
-) -> tuple[Relations | None, Path | None]:
-    """The benchmark relations of a log (CARMEN, ROS bag): the file `relations`, else
-    `<stem>.relations` beside the log when there is one (else (None, None)). A relations file
-    of another log would only fail at evaluation, after a long run: every stamp is matched to
-    its scan (`times`, s) within `tol_s` now, and the scan's own time is used from here on."""
-    if relations is not None:
-        rel_path = Path(relations)
-    else:
-        rel_path = log_path.parent / f"{stem}.relations"
-        if not rel_path.is_file():
-            return None, None
-    rel, rel_lines = _read_relations(rel_path)
-    return snap_relations(rel, rel_lines, times, tol_s, log_name=log_path.name), rel_path
-
-
-def _read_relations(path: Path) -> tuple[Relations, list[int]]:
-    """The relations and the line number of each."""
-    text = _read_text(path)
-    rows: list[list[float]] = []
-    linenos: list[int] = []
-    for lineno, line in enumerate(text.split("\n"), 1):
-        parts = line.split()
-        if not parts or parts[0].startswith("#"):
-            continue
-        record = f"line {lineno}"
-        if len(parts) != len(_RELATION_FIELDS):
-            fld = _RELATION_FIELDS[len(parts)] if len(parts) < len(_RELATION_FIELDS) else "yaw"
-            what = "missing" if len(parts) < len(_RELATION_FIELDS) else "followed by extra values"
-            raise DataError(path, f"{what}: expected 8 values (t1 t2 x y z roll pitch yaw), got {len(parts)}",
-                            record=record, field=fld)  # fmt: skip
-        row = []
-        for name, tok in zip(_RELATION_FIELDS, parts):
-            try:
-                value = float(tok)
-            except ValueError:
-                raise DataError(path, f"expected a number, got {tok!r}", record=record, field=name) from None
-            if not np.isfinite(value):
-                raise DataError(path, f"expected a finite number, got {tok!r}", record=record, field=name)
-            row.append(value)
-        rows.append(row)
-        linenos.append(lineno)
-    if not rows:
-        raise DataError(path, "no relations in file")
-    arr = np.asarray(rows, dtype=np.float64)
-    return Relations(t1=arr[:, 0], t2=arr[:, 1], rel=arr[:, [2, 3, 7]].copy(), path=str(path)), linenos
 
 
 # ----------------------------------------------------------------------------- log parsing
@@ -524,7 +413,7 @@ def load_carmen(
     if max_range_m is not None and not (np.isfinite(max_range_m) and max_range_m > 0):
         raise ValueError(f"max_range_m must be a positive number of metres, got {max_range_m}")
     path = Path(path)
-    text = _read_text(path)
+    text = read_text(path)
     # split("\n"), not splitlines(): that also breaks at \x0b, \x0c, \x1c-\x1e and \x85.
     lines = text.split("\n")
     if "\r" in text:

@@ -37,9 +37,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from slamlab.datasets.carmen import relations_for_log
+from slamlab.datasets.relations import DEFAULT_RELATIONS_TOL_S, relations_for_log
 from slamlab.errors import ConfigError, DataError
-from slamlab.eval.relations import DEFAULT_RELATIONS_TOL_S
 from slamlab.frames import ScanFrame, Sequence
 from slamlab.geometry import FloatArray, rot_z, trans, wrap_angle
 

@@ -32,6 +32,7 @@ import scipy.io
 
 from slamlab import robot
 from slamlab.datasets.calibration import load_kinect_calibration
+from slamlab.datasets.stamps import nearest_index
 from slamlab.errors import DataError
 from slamlab.frames import KinectCalibration, ScanFrame, Sequence
 from slamlab.geometry import wrap_angle
@@ -236,16 +237,6 @@ class JointLog:
     def nearest(self, t: np.ndarray) -> np.ndarray:
         """Index of the joint sample nearest in time to each t (vectorised)."""
         return nearest_index(self.ts, t)
-
-
-def nearest_index(sorted_t: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """For each time in `t` (s), the index of the nearest entry of `sorted_t` (s, ascending,
-    non-empty); ties go to the earlier entry."""
-    t = np.asarray(t)
-    if sorted_t.size == 1:
-        return np.zeros(t.shape, dtype=np.intp)
-    j = np.clip(np.searchsorted(sorted_t, t), 1, sorted_t.size - 1)
-    return np.where(np.abs(t - sorted_t[j - 1]) <= np.abs(sorted_t[j] - t), j - 1, j)
 
 
 def read_joint_mat(path: str | Path) -> JointLog:

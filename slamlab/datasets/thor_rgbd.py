@@ -30,7 +30,7 @@ from typing import BinaryIO
 import numpy as np
 
 from slamlab import robot
-from slamlab.datasets.thor import nearest_index
+from slamlab.datasets.stamps import nearest_index
 from slamlab.errors import DataError
 from slamlab.frames import RGBDFrame
 

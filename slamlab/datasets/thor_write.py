@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import scipy.io
 
-from slamlab.artifacts import atomic_path
+from slamlab.io.atomic import atomic_path
 
 __all__ = [
     "DepthRecord",

@@ -18,16 +18,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamlab.errors import ConfigError, DataError
+from slamlab.datasets.stamps import nearest_index
 from slamlab.frames import Relations
 from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, wrap_angle
 
-# Relation files and CARMEN logs both print times with 6 decimals, so matching times are
-# equal once parsed; the tolerance only absorbs conversions through other tools.
+# Relation stamps are snapped to scan times when a log is loaded (slamlab.datasets.relations),
+# so matching times are equal; the tolerance only absorbs conversions through other tools.
 DEFAULT_TIME_TOL_S = 1e-6
-# Matching a relations file to a log (`dataset.relations_time_tol_s`): some published files
-# round their stamps to 10 us, so a stamp is matched to the nearest scan within this (s).
-DEFAULT_RELATIONS_TOL_S = 1e-4
 
 
 def find_times(
@@ -38,7 +35,7 @@ def find_times(
 
     Two times match when they differ by at most `tol_s` seconds (widened to a few float64
     ulps for large epoch times). Where several scans share a time the first in file order
-    wins.
+    wins; a query exactly halfway between two scan times takes the earlier one.
     """
     times = np.asarray(times, dtype=np.float64).reshape(-1)
     query = np.asarray(query, dtype=np.float64).reshape(-1)
@@ -46,51 +43,12 @@ def find_times(
         return np.full(query.size, -1, dtype=np.intp), np.zeros(query.size, dtype=bool)
     order = np.argsort(times, kind="stable")  # stable: equal times keep file order
     sorted_t = times[order]
-    pos = np.searchsorted(sorted_t, query, side="left")
-    # The nearest scan time is either at pos (first >= q) or just before it.
-    lo = np.clip(pos - 1, 0, sorted_t.size - 1)
-    hi = np.clip(pos, 0, sorted_t.size - 1)
-    pick_hi = np.abs(sorted_t[hi] - query) <= np.abs(sorted_t[lo] - query)
-    best = np.where(pick_hi, hi, lo)
+    best = nearest_index(sorted_t, query)
     # A run of equal times: step back to its first member so file order decides.
     best = np.searchsorted(sorted_t, sorted_t[best], side="left")
     tol = np.maximum(tol_s, 8.0 * np.spacing(np.abs(query)))
     ok = np.abs(sorted_t[best] - query) <= tol
     return np.where(ok, order[best], -1), ok
-
-
-def snap_relations(
-    relations: Relations, linenos: list[int], times: np.ndarray, tol_s: float, log_name: str = "the log"
-) -> Relations:
-    """The relations with each stamp replaced by the time of the scan nearest to it (`times`,
-    s, file order), so that later lookups are exact.
-
-    Raises DataError naming the relations file, the line, the stamp and the nearest scan
-    time when a stamp has no scan within `tol_s` s (another log's relations?) or lies within
-    `tol_s` of two scans of different times (ambiguous: lower the tolerance).
-    """
-    if not (np.isfinite(tol_s) and tol_s >= 0):
-        raise ConfigError("dataset.relations_time_tol_s", f"must be a number of seconds >= 0, got {tol_s}")
-    distinct = np.unique(np.asarray(times, dtype=np.float64))  # sorted; repeated scan times count once
-    snapped = {}
-    for name, query in (("t1", relations.t1), ("t2", relations.t2)):
-        pos = np.clip(np.searchsorted(distinct, query), 1, max(distinct.size - 1, 1))
-        lo, hi = distinct[pos - 1], distinct[np.minimum(pos, distinct.size - 1)]
-        nearest = np.where(np.abs(hi - query) < np.abs(lo - query), hi, lo)
-        other = np.where(nearest == hi, lo, hi)  # the next nearest distinct time
-        far = np.abs(nearest - query) > tol_s
-        ambiguous = ~far & (other != nearest) & (np.abs(other - query) <= tol_s)
-        for k in np.flatnonzero(far | ambiguous)[:1]:
-            where = dict(record=f"line {linenos[k]}", field=name)
-            if far[k]:
-                raise DataError(relations.path, f"stamp {query[k]:.6f} has no scan in {log_name} within "
-                                f"{tol_s:g} s (nearest scan time {nearest[k]:.6f}, {abs(nearest[k] - query[k]):.6f} s "
-                                f"away; {int(np.count_nonzero(far))} stamps affected; wrong relations file?)", **where)
-            raise DataError(relations.path, f"stamp {query[k]:.6f} is within {tol_s:g} s of two scans of "
-                            f"{log_name} ({nearest[k]:.6f} and {other[k]:.6f}): ambiguous; lower "
-                            "dataset.relations_time_tol_s", **where)  # fmt: skip
-        snapped[name] = nearest
-    return Relations(snapped["t1"], snapped["t2"], relations.rel, relations.path)
 
 
 def match_times(times: np.ndarray, query: np.ndarray, tol_s: float = DEFAULT_TIME_TOL_S) -> np.ndarray:

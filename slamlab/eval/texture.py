@@ -15,98 +15,16 @@ metrics.json); `truth=None` (real data) gives the counters and coverage only.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from slamlab.eval.trajectory import sample_onto
 from slamlab.frames import GridImage, GroundTruth
+from slamlab.texture.texture_map import resample_to_grid
 
-if TYPE_CHECKING:  # the pipeline imports this module; avoid the cycle at run time
+if TYPE_CHECKING:  # for the annotation only: the texture pipeline (open3d etc.) loads when used
     from slamlab.texture.pipeline import TextureResult
-
-
-@dataclass(slots=True)
-class DetectionCounts:
-    """Pixel counts of one detector against ground labels, summed over labelled frames.
-    Only valid depth pixels (the ones a detector sees) are counted."""
-
-    tp: int = 0
-    fp: int = 0
-    fn: int = 0
-    tn: int = 0
-    frames: int = 0
-
-    def add(self, predicted: np.ndarray, truth: np.ndarray) -> None:
-        """Add one frame: `predicted`, `truth` (M,) bool over the same points."""
-        p = np.asarray(predicted, dtype=bool)
-        t = np.asarray(truth, dtype=bool)
-        tp = int(np.count_nonzero(p & t))
-        np_ = int(np.count_nonzero(p))
-        nt = int(np.count_nonzero(t))
-        self.tp += tp
-        self.fp += np_ - tp
-        self.fn += nt - tp
-        self.tn += int(p.size) - np_ - nt + tp
-        self.frames += 1
-
-    @property
-    def precision(self) -> float:
-        """TP / (TP + FP); NaN if nothing was predicted."""
-        d = self.tp + self.fp
-        return self.tp / d if d else float("nan")
-
-    @property
-    def recall(self) -> float:
-        """TP / (TP + FN); NaN if no pixel is labelled floor."""
-        d = self.tp + self.fn
-        return self.tp / d if d else float("nan")
-
-    def as_dict(self) -> dict:
-        p, r = self.precision, self.recall
-        f1 = 2 * p * r / (p + r) if (p + r) > 0 else float("nan")
-        return {
-            "precision": p, "recall": r, "f1": f1, "frames": self.frames,
-            "tp": self.tp, "fp": self.fp, "fn": self.fn, "tn": self.tn,
-        }  # fmt: skip
-
-
-def resample_to_grid(
-    texture: GridImage, shape: tuple[int, int], resolution_m: float, origin_xy: tuple[float, float]
-) -> tuple[np.ndarray, np.ndarray]:
-    """Average a (finer) colour GridImage into the cells of another grid.
-
-    Returns (colour (H, W, 3) float64, has_truth (H, W) bool); each source pixel goes to the
-    cell holding its centre. If the source is coarser than the target, nearest sampling at
-    cell centres is used instead (every target cell would otherwise miss out)."""
-    h, w = int(shape[0]), int(shape[1])
-    src = np.asarray(texture.data)
-    sh, sw = src.shape[:2]
-    if texture.resolution_m > resolution_m:
-        cy = origin_xy[1] + (np.arange(h) + 0.5) * resolution_m
-        cx = origin_xy[0] + (np.arange(w) + 0.5) * resolution_m
-        r = np.floor((cy - texture.origin_xy[1]) / texture.resolution_m).astype(int)
-        c = np.floor((cx - texture.origin_xy[0]) / texture.resolution_m).astype(int)
-        rr, cc = np.meshgrid(r, c, indexing="ij")
-        ok = (rr >= 0) & (rr < sh) & (cc >= 0) & (cc < sw)
-        out = np.zeros((h, w, 3))
-        out[ok] = src[rr[ok], cc[ok], :3]
-        return out, ok
-    ys = texture.origin_xy[1] + (np.arange(sh) + 0.5) * texture.resolution_m
-    xs = texture.origin_xy[0] + (np.arange(sw) + 0.5) * texture.resolution_m
-    r = np.floor((ys - origin_xy[1]) / resolution_m).astype(np.int64)
-    c = np.floor((xs - origin_xy[0]) / resolution_m).astype(np.int64)
-    rr, cc = np.meshgrid(r, c, indexing="ij")
-    ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-    lin = (rr * w + cc)[ok]
-    n = np.bincount(lin, minlength=h * w).astype(np.float64)
-    out = np.zeros((h * w, 3))
-    for k in range(3):
-        out[:, k] = np.bincount(lin, weights=src[..., k][ok].astype(np.float64), minlength=h * w)
-    has = n > 0
-    out[has] /= n[has, None]
-    return out.reshape(h, w, 3), has.reshape(h, w)
 
 
 def neighbour_contrast(color: np.ndarray, mask: np.ndarray) -> float:

@@ -229,17 +229,11 @@ def read_tum(path: Path) -> Trajectory | None:
 
 
 def read_logodds(path: Path) -> LogOddsMap | None:
-    """Read map_logodds.npz (`data`, `resolution_m`, `origin_xy`); None if missing."""
+    """Read map_logodds.npz (`slamlab.artifacts.read_logodds`); None if missing."""
     if not path.is_file():
         return None
-    with np.load(path) as z:
-        try:
-            data = np.asarray(z["data"], dtype=np.float32)
-            res = float(np.asarray(z["resolution_m"]).reshape(()))
-            origin = np.asarray(z["origin_xy"], dtype=np.float64).reshape(2)
-        except KeyError as exc:
-            raise SlamlabError(f"{path}: missing array {exc} (need data, resolution_m, origin_xy)") from exc
-    return LogOddsMap(data=data, resolution_m=res, origin_xy=(float(origin[0]), float(origin[1])))
+    grid = artifacts.read_logodds(path)
+    return LogOddsMap(data=grid.data, resolution_m=grid.resolution_m, origin_xy=grid.origin_xy)
 
 
 def _read_npz(path: Path, record: type) -> Any:

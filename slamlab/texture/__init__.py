@@ -6,7 +6,8 @@ Modules (one step each, in pipeline order):
 - `ground`: floor detectors chosen by `conf/ground/*.yaml` (`threshold`, `plane`, `image_plane`);
 - `align`: IR frame -> RGB frame (R, T mm) -> RGB pixel -> colour;
 - `texture_map`: the colour grid aligned with the occupancy grid (mean or robust average);
+- `detection`: detector-vs-label pixel counts (`DetectionCounts`);
 - `pipeline`: `run_texture(sequence, times, poses, grid, ground_cfg, texture_cfg, progress)`
-  -> `TextureResult`, `save_texture_outputs`, `texture_metrics` (from `slamlab.eval.texture`);
+  -> `TextureResult`, `save_texture_outputs` (scored by `slamlab.eval.texture.texture_metrics`);
 - `synthetic`: analytic RGB-D frames of a textured floor for tests and benchmarks.
 """

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from slamlab.camera import distort_normalized, scaled_intrinsics
 from slamlab.frames import CameraIntrinsics, KinectCalibration
-from slamlab.texture.backproject import distort_normalized, scaled_intrinsics
 
 MIN_Z_M = 0.05  # points closer than this to the RGB image plane cannot be projected reliably
 

@@ -4,13 +4,14 @@ Conventions
 - The optical frame is z forward, x right, y down (THOR_FORMAT.md); points are in metres.
 - Pixel coordinates follow the Bouguet calibration toolbox that produced the `cameraParam/`
   files: (u, v) = (column, row) and (0, 0) is the CENTRE of the top-left pixel, so pixel
-  (row r, col c) has u = c, v = r. Pixel to ray: x = (u - cc_u) z / fc_u, y = (v - cc_v) z / fc_v.
+  (row r, col c) has u = c, v = r. Pixel to ray: x = (u - cc_u) z / fc_u, y = (v - cc_v) z / fc_v
+  (`slamlab.camera.pixel_rays`, shared with the simulator).
 - Mirroring: the Kinect stores its images mirrored left-right. The dataset readers undo this
   (`RGBDFrame.depth_m` and `.rgb` are as a person sees them), so nothing here flips images.
   The calibration is applied to the un-mirrored images as it is; if a calibration was
   estimated on the mirrored images, convert it once with `slamlab.texture.align.unmirror_calibration`
   (texture config `calibration_mirrored: true`).
-- Lens distortion (`kc`, Bouguet: k1 k2 p1 p2 k3) is optional. Because every depth pixel's
+- Lens distortion (`kc`, Bouguet: k1 k2 p1 p2 k3; `slamlab.camera`) is optional. Because every depth pixel's
   ray is fixed, the undistorted ray of each pixel is computed ONCE per camera and stride (an
   iterative inversion of the distortion model) and a frame then costs one multiply per axis:
   undistortion is free per frame.
@@ -22,77 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slamlab.camera import pixel_rays, scaled_intrinsics
 from slamlab.frames import CameraIntrinsics
-
-
-def scaled_intrinsics(intr: CameraIntrinsics, width: int, height: int) -> CameraIntrinsics:
-    """The same camera for an image of `width` x `height` px (e.g. a simulator that renders a
-    smaller image than the calibrated one): focal lengths and principal point scale with the
-    image; distortion (in normalised coordinates) does not change."""
-    if width == intr.width and height == intr.height:
-        return intr
-    sx, sy = width / intr.width, height / intr.height
-    # Pixel centres at integer coordinates: a pixel-centre grid scales about -0.5.
-    cc = np.array([(intr.cc[0] + 0.5) * sx - 0.5, (intr.cc[1] + 0.5) * sy - 0.5])
-    return CameraIntrinsics(
-        fc=np.array([intr.fc[0] * sx, intr.fc[1] * sy]),
-        cc=cc,
-        kc=np.asarray(intr.kc, dtype=np.float64).copy(),
-        alpha_c=intr.alpha_c,
-        width=int(width),
-        height=int(height),
-    )
-
-
-def distort_normalized(x: np.ndarray, y: np.ndarray, kc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Apply the Bouguet distortion model to normalised image coordinates (x = X/Z, y = Y/Z)."""
-    k1, k2, p1, p2, k3 = (float(k) for k in np.asarray(kc, dtype=np.float64).reshape(-1)[:5])
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    return xd, yd
-
-
-def undistort_normalized(
-    xd: np.ndarray, yd: np.ndarray, kc: np.ndarray, iterations: int = 12
-) -> tuple[np.ndarray, np.ndarray]:
-    """Invert `distort_normalized` with Newton's method (analytic 2x2 Jacobian).
-
-    Why not the toolbox's fixed-point iteration: with the Kinect IR lens (k2 = -0.25) it
-    diverges in the image corners. Worse, there the model has NO inverse: r (1 + k1 r^2 +
-    k2 r^4) peaks at r_d ~ 0.85, while the IR image corners reach r_d ~ 0.9 (the polynomial is
-    extrapolated beyond the calibration target). Such points, and any that do not converge or
-    land on the folded-back branch (Jacobian determinant <= 0), come back as NaN so callers
-    drop them rather than place them wrongly. Runs once per camera (see `Backprojector`).
-    Converges to ~1e-12 elsewhere."""
-    k1, k2, p1, p2, k3 = (float(k) for k in np.asarray(kc, dtype=np.float64).reshape(-1)[:5])
-    xd = np.asarray(xd, dtype=np.float64)
-    yd = np.asarray(yd, dtype=np.float64)
-    x, y = xd.copy(), yd.copy()
-    for _ in range(iterations):
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        g = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
-        fx = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - xd
-        fy = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y - yd
-        jxx = radial + 2.0 * x * x * g + 2.0 * p1 * y + 6.0 * p2 * x
-        jxy = 2.0 * x * y * g + 2.0 * p1 * x + 2.0 * p2 * y
-        jyy = radial + 2.0 * y * y * g + 6.0 * p1 * y + 2.0 * p2 * x
-        det = jxx * jyy - jxy * jxy  # the Jacobian is symmetric
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            x = x - (jyy * fx - jxy * fy) / det
-            y = y - (jxx * fy - jxy * fx) / det
-    with np.errstate(invalid="ignore", over="ignore"):
-        rx, ry = distort_normalized(x, y, kc)
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        g = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
-        jxx = radial + 2.0 * x * x * g + 2.0 * p1 * y + 6.0 * p2 * x
-        jxy = 2.0 * x * y * g + 2.0 * p1 * x + 2.0 * p2 * y
-        jyy = radial + 2.0 * y * y * g + 6.0 * p1 * y + 2.0 * p2 * x
-        ok = (np.abs(rx - xd) < 1e-9) & (np.abs(ry - yd) < 1e-9) & (jxx * jyy - jxy * jxy > 0) & (jxx > 0)
-    return np.where(ok, x, np.nan), np.where(ok, y, np.nan)
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,14 +94,7 @@ class Backprojector:
                 self._tables[key] = _TABLE_CACHE[ikey]
                 return self._tables[key]
             intr = scaled_intrinsics(self.intrinsics, width, height)
-            s = self.stride
-            v, u = np.mgrid[0:height:s, 0:width:s]
-            xd = (u - intr.cc[0]) / intr.fc[0]
-            yd = (v - intr.cc[1]) / intr.fc[1]
-            # alpha_c (skew) is 0 for the Kinect files; honour it anyway: x_pix = fc*(x + alpha*y) + cc.
-            xd = xd - intr.alpha_c * yd
-            if self.undistort and np.any(np.asarray(intr.kc) != 0):
-                xd, yd = undistort_normalized(xd, yd, intr.kc)
+            u, v, xd, yd = pixel_rays(intr, self.stride, self.undistort)
             self._tables[key] = (
                 u.astype(np.int32).ravel(),
                 v.astype(np.int32).ravel(),

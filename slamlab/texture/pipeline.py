@@ -11,8 +11,8 @@ the fixed-size accumulator; no frame is kept):
 4. floor points -> RGB frame (R, T) -> RGB pixel -> colour (`align`);
 5. colour added to the texture cell under each point (`texture_map`).
 
-Public entry points: `run_texture`, `save_texture_outputs`, `texture_metrics` (re-exported
-from `slamlab.eval.texture`), `texture_enabled`, `TextureResult`.
+Public entry points: `run_texture`, `save_texture_outputs`, `texture_enabled`,
+`TextureResult` (scored by `slamlab.eval.texture.texture_metrics`).
 
 Bad input never crashes a run half-way: missing calibration or no RGB-D raise a clear
 `DataError` before any work; a bad frame (no valid depth, no colour, colour too far in time,
@@ -32,26 +32,25 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from slamlab.artifacts import atomic_path
+from slamlab.camera import scaled_intrinsics
+from slamlab.io.atomic import atomic_path
 from slamlab.errors import ConfigError, DataError, SlamlabError
-from slamlab.eval.texture import DetectionCounts, texture_metrics
 from slamlab.frames import GridImage, KinectCalibration, RGBDFrame, Sequence
 from slamlab import geometry
 from slamlab.texture.align import sample_colors, unmirror_calibration
-from slamlab.texture.backproject import Backprojector, scaled_intrinsics
+from slamlab.texture.backproject import Backprojector
+from slamlab.texture.detection import DetectionCounts
 from slamlab.texture.ground import GroundDetector, GroundQuery
 from slamlab.texture.samples import FrameSample, sample_frame, sample_ordinals
-from slamlab.texture.texture_map import TextureAccumulator
+from slamlab.texture.texture_map import TextureAccumulator, resample_to_grid
 
 __all__ = [
     "TextureResult",
     "run_texture",
     "save_texture_outputs",
-    "texture_metrics",
     "texture_enabled",
     "interpolate_poses",
     "PoseTrack",
-    "body_to_world",
     "build_detector",
 ]
 
@@ -190,12 +189,6 @@ def interpolate_poses(times: np.ndarray, poses: np.ndarray, t_query: np.ndarray 
     """One-off `PoseTrack(times, poses)(t_query)`: the trajectory at `t_query` (s) and how far
     (s) each query lies outside the trajectory's time span (0 inside)."""
     return PoseTrack(times, poses)(t_query)
-
-
-def body_to_world(pose: np.ndarray, body_height_m: float, roll: float = 0.0, pitch: float = 0.0) -> np.ndarray:
-    """4x4 world pose of the body: Txyz(x, y, body_height_m) Rz(theta) Ry(pitch) Rx(roll)."""
-    x, y, th = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
-    return geometry.body_to_world(x, y, th, roll, pitch, body_height_m)
 
 
 # ---- config -------------------------------------------------------------------------------
@@ -407,7 +400,8 @@ def run_texture(
 def _camera_to_world(frame: RGBDFrame, track: PoseTrack, body_height_m: float) -> np.ndarray:
     """4x4 pose of the IR optical frame in the world at the frame's depth time."""
     pose, _ = track(frame.t)
-    T_wb = body_to_world(pose, body_height_m, frame.roll, frame.pitch)
+    x, y, th = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
+    T_wb = geometry.body_to_world(x, y, th, frame.roll, frame.pitch, body_height_m)
     return T_wb @ np.asarray(frame.camera_to_body, dtype=np.float64).reshape(4, 4)
 
 
@@ -511,8 +505,6 @@ def texture_over_map_image(result: TextureResult, occupancy_prob: np.ndarray) ->
 def save_truth_texture(result: TextureResult, floor_texture: GridImage, path: Path) -> None:
     """The true floor colour (simulated data) on `result`'s grid, shown only on the cells the
     texture covers, as RGBA like texture.png: the two images compare cell for cell."""
-    from slamlab.eval.texture import resample_to_grid
-
     colour, has = resample_to_grid(floor_texture, result.count.shape, result.resolution_m, result.origin_xy)
     rgba = np.zeros(result.count.shape + (4,), dtype=np.uint8)
     shown = has & result.covered

@@ -18,11 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-from slamlab import artifacts
-from slamlab.eval.texture import DetectionCounts
+from slamlab.io.atomic import write_npz
+from slamlab.camera import scaled_intrinsics
 from slamlab.frames import KinectCalibration, RGBDFrame
 from slamlab.texture.align import sample_colors
-from slamlab.texture.backproject import Backprojector, scaled_intrinsics
+from slamlab.texture.backproject import Backprojector
+from slamlab.texture.detection import DetectionCounts
 from slamlab.texture.ground import GroundDetector, GroundQuery
 
 SAMPLE_FRAMES = 5
@@ -117,4 +118,4 @@ def write_samples(path: Path, samples: list[FrameSample]) -> None:
             arrays[f"mask_{i}_{n}"] = m
         if s.truth is not None:
             arrays[f"truth_{i}"] = s.truth
-    artifacts.write_npz(path, **arrays)
+    write_npz(path, **arrays)

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from slamlab.camera import pixel_rays, scaled_intrinsics
 from slamlab.frames import CameraIntrinsics, GridImage, KinectCalibration
-from slamlab.texture.backproject import undistort_normalized
 
 WALL_RGB = (200, 30, 200)  # a colour the floor textures below never use
 
@@ -28,13 +28,9 @@ def checker_texture(size_m: float = 12.0, res_m: float = 0.02, tile_m: float = 0
 
 
 def _camera_rays(intr: CameraIntrinsics) -> np.ndarray:
-    """(H, W, 3) normalised rays (x/z, y/z, 1) of every pixel centre."""
-    v, u = np.mgrid[0 : intr.height, 0 : intr.width].astype(np.float64)
-    yd = (v - intr.cc[1]) / intr.fc[1]
-    xd = (u - intr.cc[0]) / intr.fc[0] - intr.alpha_c * yd
-    if np.any(np.asarray(intr.kc) != 0):
-        xd, yd = undistort_normalized(xd, yd, intr.kc)
-    return np.stack([xd, yd, np.ones_like(xd)], axis=-1)
+    """(H, W, 3) normalised rays (x/z, y/z, 1) of every pixel centre, lens distortion inverted."""
+    _, _, x, y = pixel_rays(intr, undistort=True)
+    return np.stack([x, y, np.ones_like(x)], axis=-1)
 
 
 def _hit(T_world_cam: np.ndarray, rays: np.ndarray, wall_x_m: float | None) -> tuple[np.ndarray, np.ndarray]:
@@ -94,8 +90,6 @@ def render_frame(
 
 def scaled_calibration(calib: KinectCalibration, scale: float) -> KinectCalibration:
     """The same Kinect with both images resized by `scale` (fast small frames for tests)."""
-    from slamlab.texture.backproject import scaled_intrinsics
-
     def s(intr: CameraIntrinsics) -> CameraIntrinsics:
         return scaled_intrinsics(intr, max(1, round(intr.width * scale)), max(1, round(intr.height * scale)))
 
@@ -116,8 +110,8 @@ def synthetic_sequence(
     true floor texture; `poses` (N, 3) are the true body poses. Frames are rendered up front
     (use a `scaled_calibration` for speed)."""
     from slamlab.frames import GroundTruth, RGBDFrame, Sequence
+    from slamlab.geometry import body_to_world
     from slamlab.robot import COM_HEIGHT_M, camera_to_body
-    from slamlab.texture.pipeline import body_to_world
 
     texture = texture if texture is not None else checker_texture()
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
@@ -125,7 +119,8 @@ def synthetic_sequence(
     labels: dict[int, np.ndarray] = {}
     cam_to_body = camera_to_body(neck_yaw_rad, head_pitch_rad)
     for i, pose in enumerate(poses):
-        T = body_to_world(pose, COM_HEIGHT_M) @ cam_to_body
+        x, y, th = (float(v) for v in pose)
+        T = body_to_world(x, y, th, height_m=COM_HEIGHT_M) @ cam_to_body
         depth, rgb, label = render_frame(calib, T, texture, wall_x_m=wall_x_m, noise_m=noise_m, seed=i)
         frames.append(
             RGBDFrame(

@@ -130,3 +130,40 @@ class TextureAccumulator:
         pts = self.xyz_sum[seen] / n
         cols = np.clip(np.rint(self.color_sum[seen] / n), 0, 255).astype(np.uint8)
         return pts, cols
+
+
+def resample_to_grid(
+    texture: GridImage, shape: tuple[int, int], resolution_m: float, origin_xy: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Average a (finer) colour GridImage into the cells of another grid.
+
+    Returns (colour (H, W, 3) float64, has_truth (H, W) bool); each source pixel goes to the
+    cell holding its centre. If the source is coarser than the target, nearest sampling at
+    cell centres is used instead (every target cell would otherwise miss out)."""
+    h, w = int(shape[0]), int(shape[1])
+    src = np.asarray(texture.data)
+    sh, sw = src.shape[:2]
+    if texture.resolution_m > resolution_m:
+        cy = origin_xy[1] + (np.arange(h) + 0.5) * resolution_m
+        cx = origin_xy[0] + (np.arange(w) + 0.5) * resolution_m
+        r = np.floor((cy - texture.origin_xy[1]) / texture.resolution_m).astype(int)
+        c = np.floor((cx - texture.origin_xy[0]) / texture.resolution_m).astype(int)
+        rr, cc = np.meshgrid(r, c, indexing="ij")
+        ok = (rr >= 0) & (rr < sh) & (cc >= 0) & (cc < sw)
+        out = np.zeros((h, w, 3))
+        out[ok] = src[rr[ok], cc[ok], :3]
+        return out, ok
+    ys = texture.origin_xy[1] + (np.arange(sh) + 0.5) * texture.resolution_m
+    xs = texture.origin_xy[0] + (np.arange(sw) + 0.5) * texture.resolution_m
+    r = np.floor((ys - origin_xy[1]) / resolution_m).astype(np.int64)
+    c = np.floor((xs - origin_xy[0]) / resolution_m).astype(np.int64)
+    rr, cc = np.meshgrid(r, c, indexing="ij")
+    ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+    lin = (rr * w + cc)[ok]
+    n = np.bincount(lin, minlength=h * w).astype(np.float64)
+    out = np.zeros((h * w, 3))
+    for k in range(3):
+        out[:, k] = np.bincount(lin, weights=src[..., k][ok].astype(np.float64), minlength=h * w)
+    has = n > 0
+    out[has] /= n[has, None]
+    return out.reshape(h, w, 3), has.reshape(h, w)

@@ -22,10 +22,10 @@ from pathlib import Path
 import numpy as np
 
 from slamlab import robot
-from slamlab.artifacts import write_tum
+from slamlab.io.tum import write_tum
 from slamlab.datasets.sim import calib as simcalib
 from slamlab.datasets.sim import truth as simtruth
-from slamlab.datasets.sim.kinect import pixel_rays, render_depth, render_rgb, rgb_to_ir
+from slamlab.datasets.sim.kinect import camera_rays, render_depth, render_rgb, rgb_to_ir
 from slamlab.datasets.sim.sensors import (
     BEAM_RES_RAD,
     sensor_poses,
@@ -39,7 +39,7 @@ from slamlab.geometry import wrap_angle
 
 # Bump whenever the generator's output changes for the same parameters: it is part of the
 # cache key, so stale cached sequences are never reused.
-SIM_VERSION = "3"  # 3: truth trajectory written by slamlab.artifacts.write_tum
+SIM_VERSION = "3"  # 3: truth trajectory written by slamlab.io.tum.write_tum
 # The loops layout's own version, appended to SIM_VERSION for it (so bumping it leaves every
 # ring sequence's cache key alone). Bump whenever the loops world or route changes.
 LOOPS_VERSION = "1"
@@ -240,7 +240,7 @@ def generate_sequence(folder: str | Path, params: SimParams = SimParams(), calib
         heads = np.stack([s_k["neck_yaw"], s_k["head_pitch"]], axis=1)
         people_k = _people(params, world, t_k)
         rng_depth = np.random.default_rng([seed, 707])
-        ir_rays = pixel_rays(calib.ir)
+        ir_rays = camera_rays(calib.ir)
 
         def depth_frames() -> Iterator:
             for k in range(n_rgbd):
@@ -251,7 +251,7 @@ def generate_sequence(folder: str | Path, params: SimParams = SimParams(), calib
 
         tw.write_depth_mat(folder / f"DEPTH_{SEQUENCE}.mat", depth_frames())
         if params.rgb:
-            rgb_rays = pixel_rays(calib.rgb)
+            rgb_rays = camera_rays(calib.rgb)
             rgb_in_ir = rgb_to_ir(calib)
 
             def rgb_frames() -> Iterator:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from slamlab.camera import pixel_rays
 from slamlab.frames import CameraIntrinsics, GridImage, KinectCalibration
 from slamlab.geometry import FloatArray
 from slamlab.datasets.sim.raycast import HIT_FLOOR, HIT_NONE, cast_camera, colour_hits
@@ -20,11 +21,11 @@ PERSON_RGB = (190, 70, 60)
 CEILING_RGB = (225, 225, 215)  # rays that leave over the 2.5 m walls: an unmodelled ceiling
 
 
-def pixel_rays(cam: CameraIntrinsics) -> FloatArray:
+def camera_rays(cam: CameraIntrinsics) -> FloatArray:
     """(H*W, 3) optical-frame rays (x, y, 1) through each pixel centre, row-major, so that a
-    ray parameter equals the z-depth. Pixel (u, v): x = (u - cc_u) / fc_u, y = (v - cc_v) / fc_v."""
-    u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
-    rays = np.stack([(u - cam.cc[0]) / cam.fc[0], (v - cam.cc[1]) / cam.fc[1], np.ones_like(u)], axis=-1)
+    ray parameter equals the z-depth: `slamlab.camera.pixel_rays` of an ideal pinhole."""
+    _, _, x, y = pixel_rays(cam)
+    rays = np.stack([x, y, np.ones_like(x)], axis=-1)
     return np.ascontiguousarray(rays.reshape(-1, 3))
 
 

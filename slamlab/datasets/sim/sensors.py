@@ -17,11 +17,6 @@ LIDAR_MAX_M = 30.0
 LIDAR_MIN_M = 0.1
 
 
-def body_to_world(x: float, y: float, theta: float, roll: float, pitch: float) -> FloatArray:
-    """4x4 body pose in the world: Txyz(x, y, COM height) Rz(theta) Ry(pitch) Rx(roll)."""
-    return geometry.body_to_world(x, y, theta, roll, pitch, robot.COM_HEIGHT_M)
-
-
 def sensor_poses(state: dict[str, FloatArray], sensor: str) -> np.ndarray:
     """(N, 4, 4) world poses of the lidar (`sensor="lidar"`) or the Kinect IR optical frame
     (`"camera"`) from sampled true states, through the robot's head chain (slamlab.robot)."""
@@ -29,9 +24,8 @@ def sensor_poses(state: dict[str, FloatArray], sensor: str) -> np.ndarray:
     pose = state["pose"]
     out = np.empty((pose.shape[0], 4, 4))
     for i in range(pose.shape[0]):
-        out[i] = body_to_world(pose[i, 0], pose[i, 1], pose[i, 2], state["roll"][i], state["pitch"][i]) @ mount(
-            state["neck_yaw"][i], state["head_pitch"][i]
-        )
+        T_wb = geometry.body_to_world(pose[i, 0], pose[i, 1], pose[i, 2], state["roll"][i], state["pitch"][i], robot.COM_HEIGHT_M)
+        out[i] = T_wb @ mount(state["neck_yaw"][i], state["head_pitch"][i])
     return out
 
 

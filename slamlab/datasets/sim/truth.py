@@ -27,7 +27,7 @@ from PIL import Image  # Pillow: a matplotlib dependency
 
 from slamlab.errors import DataError
 from slamlab.frames import GridImage, GroundTruth
-from slamlab.artifacts import read_tum
+from slamlab.io.tum import read_tum
 
 TRUTH_DIR = "truth"
 TRAJECTORY_FILE = "trajectory.tum"
@@ -104,7 +104,7 @@ def load_ground_truth(root: str | Path) -> GroundTruth:
     folder = Path(root) / TRUTH_DIR
     if not folder.is_dir():
         raise DataError(folder, "simulated ground truth folder is missing")
-    _, poses = read_tum(folder / TRAJECTORY_FILE)  # slamlab.artifacts
+    _, poses = read_tum(folder / TRAJECTORY_FILE)  # slamlab.io.tum
     occ = read_grid_png(folder, OCCUPANCY_FILE, as_bool=True)
     tex = read_grid_png(folder, TEXTURE_FILE, as_bool=False)
     labels: dict[int, np.ndarray] = {}

@@ -1,0 +1,74 @@
+"""Atomic file writes: every file goes to a temporary name first and is renamed into place
+when complete, so an interrupted process never leaves a half-written file behind."""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+# Prefix of the temporary names; `remove_partials` deletes what a killed process left.
+TMP_MARK = ".partial-"
+
+
+@contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """Yield a temporary path beside `path`; rename it to `path` only if the block succeeds."""
+    path = Path(path)
+    tmp = path.with_name(f"{TMP_MARK}{os.getpid()}-{path.name}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_bytes(path: Path, data: bytes) -> None:
+    """Atomically write bytes."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def write_text(path: Path, text: str) -> None:
+    """Atomically write UTF-8 text."""
+    write_bytes(path, text.encode("utf-8"))
+
+
+def write_json(path: Path, obj: object) -> None:
+    """Atomically write pretty JSON (NaN written as null so every JSON reader accepts it)."""
+    write_text(path, json.dumps(_json_safe(obj), indent=2, sort_keys=False) + "\n")
+
+
+def _json_safe(obj: object) -> object:
+    if isinstance(obj, dict):
+        return {str(k): _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        f = float(obj)
+        return f if np.isfinite(f) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.ndarray):
+        return _json_safe(obj.tolist())
+    return obj
+
+
+def write_npz(path: Path, **arrays: np.ndarray) -> None:
+    """Atomically write compressed NumPy arrays (np.load reads them back by name)."""
+    with atomic_path(path) as tmp:
+        with tmp.open("wb") as f:
+            np.savez_compressed(f, **arrays)
+
+
+def remove_partials(folder: Path) -> None:
+    """Delete temporary files a killed process may have left (only in this folder)."""
+    for p in Path(folder).glob(f"{TMP_MARK}*"):
+        p.unlink(missing_ok=True)
