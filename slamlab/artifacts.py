@@ -7,9 +7,9 @@ File names and formats are a contract (docs/RUN_DIRECTORY.md).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from slamlab.errors import DataError
 from slamlab.frames import GridImage
@@ -18,6 +18,9 @@ from slamlab.frames import GridImage
 # re-exported so a run's files are written through one namespace.
 from slamlab.io.atomic import TMP_MARK, atomic_path, remove_partials, write_bytes, write_json, write_npz, write_text  # noqa: F401
 from slamlab.io.tum import read_tum, tum_text, write_tum  # noqa: F401
+
+if TYPE_CHECKING:  # imported where a table is written: `import slamlab.cli.app` stays light
+    import pandas as pd
 
 # ROS map_server thresholds on P(occupied).
 OCCUPIED_THRESH = 0.65
@@ -40,14 +43,15 @@ def map_image(log_odds: np.ndarray) -> np.ndarray:
 
 def write_map(run_dir: Path, grid: GridImage) -> None:
     """map.png (for people), map.pgm + map.yaml (ROS map_server), map_logodds.npz (raw)."""
-    import matplotlib.pyplot as plt
+    from slamlab.png import grey_rgba, write_png
 
     run_dir = Path(run_dir)
     img = map_image(grid.data)
-    # map.png: grey levels from the probability itself so uncertain cells are visible.
+    # map.png: grey levels from the probability itself so uncertain cells are visible
+    # (Pillow alone; the bytes plt.imsave(cmap="gray", vmin=0, vmax=1) wrote before).
     shade = np.flipud(1.0 - occupancy_probability(grid.data))
     with atomic_path(run_dir / "map.png") as tmp:
-        plt.imsave(tmp, shade, cmap="gray", vmin=0.0, vmax=1.0, format="png")
+        write_png(tmp, grey_rgba(shade))
     h, w = img.shape
     write_bytes(run_dir / "map.pgm", f"P5\n{w} {h}\n255\n".encode("ascii") + img.tobytes())
     ox, oy = grid.origin_xy
@@ -90,6 +94,8 @@ def read_map(run_dir: Path) -> GridImage:
 def write_consistency(run_dir: Path, series: dict[str, np.ndarray]) -> None:
     """consistency.csv: t (s), scan_index, hit_fraction of the scans the consistency score
     replayed (slamlab.eval.consistency)."""
+    import pandas as pd
+
     write_table(Path(run_dir) / "consistency.csv", pd.DataFrame(series))
 
 

@@ -7,12 +7,15 @@ directory (see docs/RUN_DIRECTORY.md).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
+
+if TYPE_CHECKING:  # pandas costs 0.4 s and ~70 MB to import: only where a table is built
+    import pandas as pd
 
 
 @dataclass(frozen=True, slots=True)
