@@ -475,11 +475,12 @@ def _process_frame(
 
 
 # ---- outputs ------------------------------------------------------------------------------
-def _write_png(path: Path, rgba: np.ndarray) -> None:
-    import matplotlib.pyplot as plt
+def _write_png(path: Path, image: np.ndarray) -> None:
+    """A uint8 RGB(A) image as PNG, atomically (Pillow; the bytes plt.imsave wrote before)."""
+    from slamlab.png import as_rgba, write_png
 
     with atomic_path(path) as tmp:
-        plt.imsave(tmp, rgba, format="png")
+        write_png(tmp, as_rgba(image))
 
 
 def texture_image(result: TextureResult) -> np.ndarray:
