@@ -33,6 +33,9 @@ Conventions, checked on the Intel and ACES logs of the Freiburg benchmark:
 
 from __future__ import annotations
 
+import builtins
+import hashlib
+import json
 import re
 import warnings
 from dataclasses import dataclass, field
@@ -374,11 +377,19 @@ def _mount(path: Path, laser: np.ndarray, robot: np.ndarray, offset_x: float | N
         warnings.warn(
             f"{path}: laser and robot poses in the records differ by a varying amount "
             f"(not a rigid mount); using robot_frontlaser_offset = {offset_x or 0.0} m instead",
-            stacklevel=3,
+            stacklevel=4,
         )
         T = trans(x=offset_x or 0.0)
     T.flags.writeable = False
     return T
+
+
+def _check_file(path: Path) -> None:
+    """The errors `read_text` gives for a missing path or a folder (before hashing it)."""
+    if not path.exists():
+        raise DataError(path, "file not found")
+    if not path.is_file():
+        raise DataError(path, "not a regular file")
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -393,6 +404,7 @@ def load_carmen(
     name: str | None = None,
     relations_time_tol_s: float = DEFAULT_RELATIONS_TOL_S,
     on_bad_line: str = "error",
+    cache: bool = False,
 ) -> Sequence:
     """Load a CARMEN log (`.clf`, `.clf.gz`, `.clf.bz2`, `.clf.xz`) as a `Sequence`.
 
@@ -403,6 +415,10 @@ def load_carmen(
     (default: the file stem, `intel`). relations_time_tol_s: each relation stamp is matched
     to the scan nearest in time within this (s; published files may round stamps).
     on_bad_line: `error` stops at an unreadable laser line, `skip` drops it (one warning).
+    cache: keep the parsed scans of a log of `CACHE_MIN_BYTES` or more under
+    `SLAMLAB_CACHE_DIR/carmen/` (keyed by the file's sha256, the reading options and this
+    reader's version) and read them from there next time: the same arrays, bit for bit,
+    and the same warnings (the relations file is always read afresh).
 
     Scans come in file order with `t` = ipc_timestamp (s), `odom` = robot pose
     (m, m, rad), float32 ranges (m) and angles (rad); roll/pitch are 0. Arrays in the
@@ -413,11 +429,79 @@ def load_carmen(
     if max_range_m is not None and not (np.isfinite(max_range_m) and max_range_m > 0):
         raise ValueError(f"max_range_m must be a positive number of metres, got {max_range_m}")
     path = Path(path)
+    if cache:
+        parsed = _parse_log_cached(path, max_range_m, on_bad_line)
+    else:
+        parsed = _parse_log(path, max_range_m, on_bad_line)
+    scans = _frames(parsed)
+    times = np.array([s.t for s in scans])
+    rel, rel_path = relations_for_log(path, _log_stem(path), relations, times, relations_time_tol_s)
+
+    sources = [str(path)] + ([str(rel_path)] if rel_path is not None else [])
+    seq = Sequence(
+        name=name if name is not None else _log_stem(path),
+        scans=scans,
+        body_height_m=None,
+        sources=sources,
+        relations=rel,
+    )
+    if parsed.max_range_m > 0:  # else keep the Sequence default
+        seq.max_range_m = parsed.max_range_m
+    return seq
+
+
+@dataclass
+class _ScanBlock:
+    """The laser records of one shape (message type, readings): L records of n beams, as
+    contiguous read-only arrays, and each record's place among all scans in file order."""
+
+    position: np.ndarray  # (L,) int64, index of each record in file order
+    t: np.ndarray  # (L,) float64, ipc_timestamp (s)
+    odom: np.ndarray  # (L, 3) float64, robot pose (m, m, rad)
+    ranges: np.ndarray  # (L, n) float32 (m)
+    valid: np.ndarray  # (L, n) bool
+    angles: np.ndarray  # (n,) float32 (rad) shared by the records, or (L, n) per record
+    mount: np.ndarray  # (4, 4) lidar-to-body transform (m)
+
+    FIELDS = ("position", "t", "odom", "ranges", "valid", "angles", "mount")
+
+
+@dataclass
+class _ParsedLog:
+    """What reading a log yields before relations are attached."""
+
+    blocks: list[_ScanBlock]
+    max_range_m: float  # the sensor's no-return range (m); 0 when unknown
+    warnings: list[tuple[type[Warning], str]] = field(default_factory=list)  # cache only
+
+
+def _frames(parsed: _ParsedLog) -> list[ScanFrame]:
+    """One ScanFrame per record, in file order, viewing into the blocks' arrays."""
+    scans: list[ScanFrame | None] = [None] * sum(len(b.t) for b in parsed.blocks)
+    for b in parsed.blocks:
+        times = b.t.tolist()
+        per_record_angles = b.angles.ndim == 2
+        for k, i in enumerate(b.position.tolist()):
+            scans[i] = ScanFrame(
+                index=i,
+                t=times[k],
+                odom=b.odom[k],
+                ranges=b.ranges[k],
+                angles=b.angles[k] if per_record_angles else b.angles,
+                valid=b.valid[k],
+                lidar_to_body=b.mount,
+            )
+    return scans  # type: ignore[return-value]  # every slot was filled
+
+
+def _parse_log(path: Path, max_range_m: float | None, on_bad_line: str) -> _ParsedLog:
+    """Read and check the whole log (see `load_carmen`); warnings are issued as they arise."""
     text = read_text(path)
     # split("\n"), not splitlines(): that also breaks at \x0b, \x0c, \x1c-\x1e and \x85.
     lines = text.split("\n")
     if "\r" in text:
         lines = [line.rstrip("\r") for line in lines]
+    del text  # 16 MB for Intel: not held through the parse
     ends_cleanly = not lines or lines[-1] == ""
     if ends_cleanly and lines:
         lines.pop()
@@ -434,7 +518,7 @@ def load_carmen(
     if kinds == {"FLASER", "ROBOTLASER1"}:
         n_fl = sum(len(g.linenos) for k, g in groups.items() if k[0] == "FLASER")
         warnings.warn(f"{path}: has ROBOTLASER1 and FLASER scans; using ROBOTLASER1, ignoring {n_fl} FLASER lines",
-                      stacklevel=2)  # fmt: skip
+                      stacklevel=3)  # fmt: skip
         groups = {k: g for k, g in groups.items() if k[0] == "ROBOTLASER1"}
 
     offset_x = _param_float(path, params, _OFFSET_PARAM)
@@ -480,6 +564,7 @@ def load_carmen(
     if not parsed:
         raise DataError(path, "no readable laser scans: every FLASER / ROBOTLASER1 line was bad",
                         record=f"{len(bad.skipped)} lines skipped")  # fmt: skip
+    del lines, groups  # the text is parsed: free it before the arrays below are made
 
     all_ranges = np.concatenate([p[1].reshape(-1) for p in parsed])
     fallback_max = max_range_m if max_range_m is not None else param_max
@@ -487,12 +572,13 @@ def load_carmen(
         fallback_max = _detect_no_return(all_ranges)
     with np.errstate(invalid="ignore"):
         impossible = int(np.count_nonzero(~np.isfinite(all_ranges) | (all_ranges < 0)))
+    del all_ranges
 
     linenos = np.concatenate([np.asarray(p[0].linenos) for p in parsed])
     order = np.argsort(linenos, kind="stable")
     index_of = np.empty_like(order)
     index_of[order] = np.arange(order.size)  # position in file order of each parsed record
-    scans: list[ScanFrame | None] = [None] * order.size
+    blocks: list[_ScanBlock] = []
     seq_max = 0.0
     base = 0
     for g, ranges, laser, robot, t, rec_max, angles in parsed:
@@ -511,39 +597,74 @@ def load_carmen(
         else:
             r = ranges[valid]
             seq_max = max(seq_max, float(r.max()) if r.size else 0.0)
-        r32 = _readonly(ranges.astype(np.float32))
-        odom = _readonly(np.ascontiguousarray(robot))
-        times = t.tolist()
-        T = _mount(path, laser, robot, offset_x)
-        per_record_angles = angles.ndim == 2
-        for k in range(L):
-            i = int(index_of[base + k])
-            scans[i] = ScanFrame(
-                index=i,
-                t=times[k],
-                odom=odom[k],
-                ranges=r32[k],
-                angles=angles[k] if per_record_angles else angles,
-                valid=valid[k],
-                lidar_to_body=T,
-            )
+        blocks.append(_ScanBlock(
+            position=index_of[base : base + L].astype(np.int64),
+            t=_readonly(np.ascontiguousarray(t)),
+            odom=_readonly(np.ascontiguousarray(robot)),
+            ranges=_readonly(ranges.astype(np.float32)),
+            valid=valid,
+            angles=angles,
+            mount=_mount(path, laser, robot, offset_x),
+        ))  # fmt: skip
         base += L
 
     if impossible:
         warnings.warn(f"{path}: {impossible} negative, NaN or inf range readings dropped as invalid beams",
-                      RuntimeWarning, stacklevel=2)  # fmt: skip
+                      RuntimeWarning, stacklevel=3)  # fmt: skip
+    return _ParsedLog(blocks, seq_max)
 
-    times = np.array([s.t for s in scans])  # type: ignore[union-attr]
-    rel, rel_path = relations_for_log(path, _log_stem(path), relations, times, relations_time_tol_s)
 
-    sources = [str(path)] + ([str(rel_path)] if rel_path is not None else [])
-    seq = Sequence(
-        name=name if name is not None else _log_stem(path),
-        scans=scans,  # type: ignore[arg-type]  # every slot was filled above
-        body_height_m=None,
-        sources=sources,
-        relations=rel,
-    )
-    if seq_max > 0:  # else keep the Sequence default
-        seq.max_range_m = seq_max
-    return seq
+# ----------------------------------------------------------------------------- parse cache
+
+# Logs at least this big (bytes on disk) are cached when asked: parsing a smaller one costs
+# about as much as hashing and reading the entry back.
+CACHE_MIN_BYTES = 256 << 10
+# Bump when the parse's output for a given file and options changes.
+_CACHE_VERSION = 1
+_CACHE_KIND = "carmen"
+
+
+def _parse_log_cached(path: Path, max_range_m: float | None, on_bad_line: str) -> _ParsedLog:
+    """`_parse_log`, through the on-disk cache (`load_carmen(cache=True)`)."""
+    from slamlab.datasets import array_cache
+
+    _check_file(path)
+    if path.stat().st_size < CACHE_MIN_BYTES:
+        return _parse_log(path, max_range_m, on_bad_line)
+    options = {"max_range_m": max_range_m, "on_bad_line": on_bad_line, "numpy": np.__version__}
+    key = hashlib.sha256(json.dumps([_CACHE_VERSION, array_cache.file_sha256(path), options]).encode()).hexdigest()
+    entry = f"{_log_stem(path)}-{key[:24]}"
+    hit = array_cache.read_entry(_CACHE_KIND, entry)
+    # warnings name the file as it was given: an entry with warnings serves that name only
+    if hit is not None and (not hit[1].get("warnings") or hit[1].get("path") == str(path)):
+        parsed = _from_cache(*hit)
+    else:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            parsed = _parse_log(path, max_range_m, on_bad_line)
+        parsed.warnings = [(w.category, str(w.message)) for w in caught]
+        array_cache.write_entry(_CACHE_KIND, entry, *_to_cache(parsed, path))
+    for category, message in parsed.warnings:
+        warnings.warn(message, category, stacklevel=3)
+    return parsed
+
+
+def _to_cache(parsed: _ParsedLog, path: Path) -> tuple[dict[str, np.ndarray], dict]:
+    arrays = {f"{j}.{f}": getattr(b, f) for j, b in enumerate(parsed.blocks) for f in _ScanBlock.FIELDS}
+    meta = {
+        "path": str(path),
+        "blocks": len(parsed.blocks),
+        "max_range_m": parsed.max_range_m,
+        "warnings": [[c.__name__, m] for c, m in parsed.warnings],
+    }
+    return arrays, meta
+
+
+def _from_cache(arrays: dict[str, np.ndarray], meta: dict) -> _ParsedLog:
+    blocks = [_ScanBlock(**{f: arrays[f"{j}.{f}"] for f in _ScanBlock.FIELDS}) for j in range(int(meta["blocks"]))]
+    for b in blocks:
+        for f in _ScanBlock.FIELDS:
+            getattr(b, f).flags.writeable = False  # mapped read-only already; say so for all
+    found = [(getattr(builtins, c, None), m) for c, m in meta["warnings"]]
+    categories = [(c if isinstance(c, type) and issubclass(c, Warning) else UserWarning, m) for c, m in found]
+    return _ParsedLog(blocks, float(meta["max_range_m"]), categories)
