@@ -7,6 +7,7 @@ Ctrl-C prints one line (`interrupted at scan K/N; partial results in DIR`) and e
 
 from __future__ import annotations
 
+import gc
 import logging
 import sys
 from collections.abc import Callable
@@ -137,6 +138,9 @@ def _exit_if_sweep_runs_failed() -> None:
 
 def main() -> None:
     """Console entry point."""
+    # What is imported so far lives as long as the process: the garbage collector need not
+    # scan it again at every full collection.
+    gc.freeze()
     mistake = check_overrides(sys.argv[1:])
     if mistake:
         print(f"slamlab: {mistake}", file=sys.stderr)
@@ -153,6 +157,11 @@ def main() -> None:
         sys.exit(EXIT_INTERRUPTED)
     finally:
         _release_unused_claim(claimed)
+        # The process ends here: without this, Python's last full collections at exit scan
+        # every object the run imported or kept (0.6 s of CPU after a one-scan run). Frozen
+        # objects are freed with the process instead; files are closed and logs flushed by
+        # then (logging flushes in its atexit hook, which still runs).
+        gc.freeze()
 
 
 if __name__ == "__main__":
