@@ -35,7 +35,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import pandas as pd
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
@@ -286,6 +285,8 @@ def run_slam(
     # `best` indexes the last step's particles before resampling (the set hist_poses[-1]
     # holds); after a resample the weights are uniform and no longer say who was best.
     smooth = ancestral_path(hist_poses, hist_parent, best)
+
+    import pandas as pd  # here, not at import: the filter's memory peak does without its ~70 MB
 
     steps = pd.DataFrame(
         {
