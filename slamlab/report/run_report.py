@@ -220,7 +220,7 @@ def render_run_report(run: RunDir) -> str:
     cons_path = run.file("consistency.csv")
     if cons_path is not None:
         series = pd.read_csv(cons_path)
-        if len(series):
+        if len(series) > 1:  # one replayed scan has no "over time" (as for N_eff above)
             consistency_img = figures.consistency_plot(series)
 
     cmd, exact = rerun_commands(run)
