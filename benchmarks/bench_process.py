@@ -19,8 +19,8 @@ setup (the engine's imports, numba's included, and building the components), log
 them when it is cold), slam (the filter without numba loading), map.png etc. (`write_map`),
 texture, other artifacts (metrics, consistency, TUM/CSV/npz files), report (`report.html`),
 rest (interpreter start-up, Hydra's own set-up, and shutdown: total minus the phases). A
-third table gives the resident memory (MB) when each phase ended (for other artifacts: when
-the run ended), to see which one raised the peak.
+third table gives the peak resident memory so far (MB, VmHWM) when each phase ended (for
+other artifacts: when the run ended), to see which phase raised the peak.
 Numba kernels come from the on-disk cache after the first run of a checkout; run once
 before measuring.
 """
@@ -112,7 +112,7 @@ def measure(names: list[str], repeat: int, tmp: Path) -> tuple[list[dict], list[
 def probe(out: Path, argv: list[str]) -> None:
     """Run `slamlab argv` in this process with timers around the pipeline's phases (CPU s)."""
     spent: dict[str, float] = {}
-    rss: dict[str, float] = {}  # resident MB when each phase last ended
+    rss: dict[str, float] = {}  # peak resident MB so far when each phase last ended
     inner: list[float] = []  # CPU of nested timed calls, subtracted from their callers
 
     def timed(phase: str, fn):
@@ -179,9 +179,10 @@ def probe(out: Path, argv: list[str]) -> None:
 
 
 def _rss_mb() -> float:
-    """This process's resident memory now (MB; Linux)."""
+    """This process's peak resident memory so far (MB; Linux's VmHWM, which the run resets
+    when it starts: see slamlab.memory)."""
     for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
+        if line.startswith("VmHWM:"):
             return int(line.split()[1]) / 1024.0
     return float("nan")
 
@@ -205,7 +206,7 @@ def main() -> None:
     print(pd.DataFrame(rows).to_string(index=False, float_format="{:.2f}".format))
     print("\nWhere the CPU goes (s, one run each):")
     print(pd.DataFrame(phases).to_string(index=False, float_format="{:.2f}".format))
-    print("\nResident memory when each phase ended, and the process's peak (MB, same run):")
+    print("\nPeak resident memory so far when each phase ended, and the process's peak (MB, same run):")
     print(pd.DataFrame(memory).to_string(index=False, float_format="{:.0f}".format))
 
 
