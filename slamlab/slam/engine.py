@@ -281,6 +281,8 @@ def run_slam(
                 scans, times, odom = scans[: si + 1], times[: si + 1], odom[: si + 1]
             break
     runtime = time.perf_counter() - t_loop
+    map_memory = maps.memory()
+    del maps  # the particles' maps (tens of MB for the RBPF) go before pandas comes in below
 
     # `best` indexes the last step's particles before resampling (the set hist_poses[-1]
     # holds); after a resample the weights are uniform and no longer say who was best.
@@ -326,6 +328,6 @@ def run_slam(
             "neff_min": float(np.min(rows["neff"])),
             "filter": c.filter.name,
             "matcher_map_reads": int(c.matcher.map_reads) if slam else 0,
-            **maps.memory(),
+            **map_memory,
         },
     )
