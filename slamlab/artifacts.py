@@ -43,7 +43,7 @@ def map_image(log_odds: np.ndarray) -> np.ndarray:
 
 def write_map(run_dir: Path, grid: GridImage) -> None:
     """map.png (for people), map.pgm + map.yaml (ROS map_server), map_logodds.npz (raw)."""
-    from slamlab.png import grey_rgba, write_png
+    from slamlab.io.png import grey_rgba, write_png
 
     run_dir = Path(run_dir)
     img = map_image(grid.data)

@@ -1,4 +1,4 @@
-"""PNG without matplotlib: the same bytes plt.imsave wrote (slamlab.png)."""
+"""PNG without matplotlib: the same bytes plt.imsave wrote (slamlab.io.png)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from slamlab import png
+from slamlab.io import png
 
 plt = pytest.importorskip("matplotlib.pyplot")
 

@@ -24,7 +24,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from slamlab.png import grey_rgba  # noqa: E402
+from slamlab.io.png import grey_rgba  # noqa: E402
 from slamlab.report.rundir import LogOddsMap, Trajectory  # noqa: E402
 from slamlab.slam.replay import block_max  # noqa: E402
 
@@ -127,7 +127,7 @@ def prepare_map(m: LogOddsMap, max_px: int, trajectories: Sequence[Trajectory] =
 
 def draw_map(ax, view: MapView | None) -> None:
     if view is not None:
-        # Grey levels as uint8 RGBA (the "gray" colormap, slamlab.png): matplotlib then
+        # Grey levels as uint8 RGBA (the "gray" colormap, slamlab.io.png): matplotlib then
         # resamples bytes, where a float image with a colormap takes float64 RGBA copies at
         # the output size (a whole-Intel report peaked 40 MB higher). Same pixels.
         ax.imshow(grey_rgba(view.image), origin="lower", extent=view.extent, interpolation="nearest")

@@ -477,7 +477,7 @@ def _process_frame(
 # ---- outputs ------------------------------------------------------------------------------
 def _write_png(path: Path, image: np.ndarray) -> None:
     """A uint8 RGB(A) image as PNG, atomically (Pillow; the bytes plt.imsave wrote before)."""
-    from slamlab.png import as_rgba, write_png
+    from slamlab.io.png import as_rgba, write_png
 
     with atomic_path(path) as tmp:
         write_png(tmp, as_rgba(image))
