@@ -58,7 +58,9 @@ def run_once(args: list[str], run_dir: Path, env: dict[str, str], probe: Path | 
     head = [sys.executable, __file__, "--probe", str(probe), "--"] if probe else [sys.executable, "-m", "slamlab.cli.app"]
     cmd = [*head, *args, f"hydra.run.dir={run_dir}", "progress=off"]
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    # cwd: the run folder's parent, not a checkout: `python -m` puts the cwd first on
+    # sys.path, which would import the checkout there whatever PYTHONPATH says
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, cwd=run_dir.parent)
     err = proc.stderr.read() if proc.stderr else b""
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
