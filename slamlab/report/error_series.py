@@ -13,7 +13,8 @@ import numpy as np
 import pandas as pd
 
 from slamlab.geometry import wrap_angle
-from slamlab.report.rundir import RELATIONS_FILE, RunDir, Trajectory
+from slamlab.io.rundir import RunFile
+from slamlab.report.rundir import RunDir, Trajectory
 
 ATE = "ate"
 RELATIONS = "relations"
@@ -50,7 +51,7 @@ def ate_series(run: RunDir) -> ErrorSeries | None:
 def relation_series(run: RunDir) -> ErrorSeries | None:
     """Translational error of each relation the run covers, at the time of its later scan,
     from the run's relations.csv; None without one."""
-    p = run.file(RELATIONS_FILE)
+    p = run.file(RunFile.RELATIONS)
     est = run.load_trajectory("slam")
     if p is None or est is None:
         return None
