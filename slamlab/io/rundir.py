@@ -69,6 +69,14 @@ class RunFile(StrEnum):
     HYDRA_OVERRIDES = ".hydra/overrides.yaml"
 
 
+class SweepFile(StrEnum):
+    """The names a sweep directory (`multirun/DATE/TIME/`) adds beside its runs `0/`, `1/`, ..."""
+
+    MULTIRUN = "multirun.yaml"  # Hydra's record of the sweep
+    REPORT = "report.html"  # the comparison report
+    RUNS_CSV = "runs.csv"  # its table, one row per run
+
+
 class TrajectoryKind(StrEnum):
     """The four TUM trajectories of a run."""
 

@@ -28,7 +28,7 @@ from slamlab.report import figures, sweep_figures
 from slamlab.report.columns import ACCURACY_KEYS, HEADLINE_GROUPS, METRIC_BY_KEY, METRICS, get_metric
 from slamlab.report.error_series import ATE, error_series
 from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
-from slamlab.io.rundir import RunDirectory, RunFile, read_yaml
+from slamlab.io.rundir import RunDirectory, RunFile, SweepFile, read_yaml
 from slamlab.report.rundir import (
     STATUS_FAILED,
     STATUS_OK,
@@ -330,7 +330,7 @@ def _sweep_commands(runs: Sequence[RunDir]) -> list[str]:
     """`slamlab -m ...` for every sweep the runs came from (multirun.yaml beside the jobs)."""
     cmds: list[str] = []
     for root in dict.fromkeys(r.path.parent for r in runs):
-        mr = read_yaml(root / "multirun.yaml")
+        mr = read_yaml(root / SweepFile.MULTIRUN)
         if not isinstance(mr, dict):
             continue
         task = (((mr.get("hydra") or {}).get("overrides") or {}).get("task")) or []
@@ -500,7 +500,7 @@ def build_sweep_report(
     out_dir: Path,
     title: str | None = None,
     *,
-    filename: str = RunFile.REPORT,
+    filename: str = SweepFile.REPORT,
 ) -> Path:
     """Compare every run found at or under `dirs`; write `out_dir/<filename>` (self-contained
     HTML, atomically) and `out_dir/runs.csv` (the table). Returns the HTML path.
@@ -574,5 +574,5 @@ def build_sweep_report(
         base_config=yaml.safe_dump(base, sort_keys=False) if base else None,
     )
     csv = df.drop(columns=["particles_metric"])
-    atomic_write_text(out_dir / "runs.csv", csv.to_csv(index=False))
+    atomic_write_text(out_dir / SweepFile.RUNS_CSV, csv.to_csv(index=False))
     return atomic_write_text(out_dir / filename, html)
