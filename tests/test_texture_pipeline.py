@@ -22,7 +22,7 @@ from slamlab.texture.pipeline import (
     save_texture_outputs,
     texture_enabled,
 )
-from slamlab.texture.synthetic import scaled_calibration, synthetic_sequence
+from synthetic_rgbd import scaled_calibration, synthetic_sequence
 
 CONF = Path(__file__).resolve().parents[1] / "slamlab" / "conf"
 GROUND = OmegaConf.load(CONF / "ground" / "threshold.yaml")
@@ -40,7 +40,7 @@ def texture_cfg(**over) -> OmegaConf:
 def seq():
     calib = scaled_calibration(default_calibration(), 0.25)
     poses = np.array([[0.25 * i, 0.05 * i, 0.08 * i] for i in range(8)])
-    return synthetic_sequence(calib, poses, head_pitch_rad=0.6, wall_x_m=3.5, noise_m=0.002)
+    return synthetic_sequence(calib, poses, head_pitch_rad=0.6, wall_x_m=3.5, noise_mm=2.0)
 
 
 @pytest.fixture(scope="module")
