@@ -74,3 +74,14 @@ def test_names_are_the_documented_ones(tmp_path):
     (tmp_path / RunFile.METRICS).write_text("{}")
     assert run.holds_run() == ["metrics.json"] and run.is_run()
     assert RunFile.CLAIM in RUN_MARKERS
+
+
+def test_reports_see_metrics_json_as_written(tmp_path):
+    """An older run's metrics.json (other key order, keys this version does not know, nulls)
+    reaches the report pages exactly as the file holds it."""
+    from slamlab.report.rundir import load_run
+
+    old = {"dataset": "sim", "scans": 4, "neff_mean": None, "legacy": {"a": 1}, "status": "ok", "runtime_s": 2.0}
+    (tmp_path / RunFile.METRICS).write_text(json.dumps(old))
+    run = load_run(tmp_path)
+    assert run.ok and run.metrics == old and list(run.metrics) == list(old)

@@ -40,11 +40,9 @@ def tint(base: np.ndarray, mask: np.ndarray, truth: np.ndarray | None, alpha: fl
 def ground_frames_section(run: RunDir) -> GroundFrames | None:
     """One figure: a row per sample frame, columns colour image | registered RGB-D | one per
     detector; None when the run kept no frames."""
-    p = run.file(RunFile.GROUND_FRAMES)
-    if p is None:
+    z = run.files.read_arrays(RunFile.GROUND_FRAMES)
+    if z is None:
         return None
-    with np.load(p) as z:
-        z = {k: np.asarray(z[k]) for k in z.files}
     n = len(z["index"])
     names = [str(v) for v in z["detectors"]]
     if n == 0:

@@ -69,11 +69,9 @@ def frame_image(pixels: np.ndarray, extent: np.ndarray, window: tuple[float, flo
 
 def replay_section(run: RunDir) -> ReplaySection | None:
     """The replay of a run with replay.npz (record.replay), or None."""
-    path = run.file(RunFile.REPLAY)
-    if path is None:
+    z = run.files.read_arrays(RunFile.REPLAY)
+    if z is None:
         return None
-    with np.load(path) as z:
-        z = {k: np.asarray(z[k]) for k in z.files}
     shapes, extents, counts = z["map_shape"], z["map_extent"], z["scan_count"]
     if not len(shapes):
         return None

@@ -133,9 +133,8 @@ def _error_over_time(run: RunDir, trajs: dict[str, Any]) -> tuple[str | None, st
         img = error_figures.ate_over_time(gt, {k: trajs[k] for k in ("odometry", "slam") if trajs.get(k) is not None})
         return img, ("Distance from the true pose at every scan (top) and heading error (bottom), no alignment:"
                      " a rise marks where the estimate drifted, a drop where it recovered (e.g. a loop closed).")
-    p = run.file(RunFile.RELATIONS)
-    if p is not None:
-        table = pd.read_csv(p)
+    table = run.files.read_table(RunFile.RELATIONS)
+    if table is not None:
         if len(table):
             return error_figures.relation_error_over_time(table), (
                 f"{len(table)} benchmark relations (relations.csv), each plotted at its start time: the error of the"
