@@ -18,6 +18,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from slamlab.io.run_metrics import STATUS_OK
 from slamlab.io.rundir import RunDirectory, RunFile
 from slamlab.provenance import preset_violation, read_origin
 from slamlab.run_compare import compare_runs
@@ -58,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"slamlab-verify: {run_dir} is not a finished run ({need} missing)", file=sys.stderr)
             return 2
     metrics = RunDirectory(run_dir).read_metrics()
-    if metrics is None or not metrics.ok:
+    if metrics is None or metrics.status != STATUS_OK:
         print(f"slamlab-verify: {run_dir} did not finish successfully; nothing to compare", file=sys.stderr)
         return 2
     print(f"run made with: {read_origin(run_dir).describe()}", flush=True)

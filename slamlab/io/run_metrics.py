@@ -29,7 +29,9 @@ _FLOAT_KEYS = frozenset({
 class RunMetrics:
     """One run's metrics.json. Units: seconds (`*_s`, wall unless `cpu_`), MB, counts."""
 
-    status: str = STATUS_OK  # "ok", "failed" or "interrupted"
+    # "ok", "failed" or "interrupted"; None: the file has none (written before slamlab
+    # recorded it: reports read such a run as ok, slamlab-verify refuses it)
+    status: str | None = STATUS_OK
     # --- filter statistics (slamlab.pipeline.filter_metrics) ---
     dataset: str | None = None
     mode: str | None = None  # "slam", "odometry" or "predict"
@@ -91,7 +93,7 @@ class RunMetrics:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> RunMetrics:
         """Read a metrics.json mapping (any slamlab version): known keys become fields,
-        `null` floats NaN, unknown keys `extra`. A file without `status` is an old "ok" run."""
+        `null` floats NaN, unknown keys `extra`. A file without `status` keeps None there."""
         known = {f.name for f in fields(cls)} - {"extra", "_order"}
         values: dict[str, Any] = {}
         extra: dict[str, Any] = {}
@@ -100,5 +102,5 @@ class RunMetrics:
                 values[key] = math.nan if value is None and key in _FLOAT_KEYS else value
             else:
                 extra[key] = value
-        values.setdefault("status", STATUS_OK)
+        values.setdefault("status", None)
         return cls(**values, extra=extra, _order=tuple(data))

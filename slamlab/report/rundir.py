@@ -253,7 +253,7 @@ def load_run(path: Path | str) -> RunDir:
             error = f"no {RunFile.METRICS}: the run was interrupted or is still running"
         metrics = {}
     else:
-        status = record.status
+        status = record.status or STATUS_OK  # files from before `status` was written
         error = record.error or error_txt
         if status != STATUS_OK and not error:
             error = _error_from_log(log_tail) or f"status '{status}' without an error message"
