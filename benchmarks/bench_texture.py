@@ -1,7 +1,8 @@
 """Texture mapping speed at full Kinect v2 resolution (512x424 depth, 1920x1080 colour).
 
-Renders a few analytic frames of a textured floor with a wall (real THOR calibration
-numbers, real IR lens distortion when ../shared/data is present), then streams copies of them
+Renders a few frames of a textured floor with a wall with the simulator's Kinect renderer
+(tests/synthetic_rgbd.py; real THOR calibration numbers when ../shared/data is present, the
+images an ideal pinhole's, the back-projection still undistorting with the real lens), then streams copies of them
 through `run_texture` once per ground detector and prints the median per-frame time (depth to
 accumulated colour, detector included, evaluation excluded) and peak memory. Memory is
 measured with tracemalloc over the run for a short and a 4x longer stream: equal peaks mean
@@ -15,6 +16,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import resource
+import sys
 import time
 import tracemalloc
 from pathlib import Path
@@ -26,9 +28,12 @@ from slamlab.datasets.sim.calib import default_calibration
 from slamlab.frames import GridImage
 from slamlab.paths import data_dir
 from slamlab.texture.pipeline import run_texture
-from slamlab.texture.synthetic import synthetic_sequence
 
-CONF = Path(__file__).resolve().parents[1] / "slamlab" / "conf"
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))  # the test frames' renderer (test support, not the library)
+from synthetic_rgbd import synthetic_sequence  # noqa: E402
+
+CONF = ROOT / "slamlab" / "conf"
 DETECTORS = ("threshold", "plane", "image_plane")
 
 
@@ -65,7 +70,7 @@ def main() -> None:
     n = args.frames
     poses = np.column_stack([0.3 * np.arange(n), 0.1 * np.arange(n), 0.15 * np.arange(n)])
     t0 = time.perf_counter()
-    seq = synthetic_sequence(calib, poses, head_pitch_rad=0.6, wall_x_m=3.0, noise_m=0.002)
+    seq = synthetic_sequence(calib, poses, head_pitch_rad=0.6, wall_x_m=3.0, noise_mm=2.0)
     render_s = time.perf_counter() - t0
     seq = dataclasses.replace(seq, ground_truth=None)  # timing only: no evaluation work
     grid = GridImage(np.zeros((300, 300), dtype=np.float32), 0.05, (-5.0, -7.5))

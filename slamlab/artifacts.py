@@ -11,12 +11,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from slamlab.errors import DataError
 from slamlab.frames import GridImage
 
 # The writers live in slamlab.io (below datasets and texture, which use them too); they are
 # re-exported so a run's files are written through one namespace.
 from slamlab.io.atomic import TMP_MARK, atomic_path, remove_partials, write_bytes, write_json, write_npz, write_text  # noqa: F401
+from slamlab.io.rundir import RunFile, read_logodds  # noqa: F401
 from slamlab.io.tum import read_tum, tum_text, write_tum  # noqa: F401
 
 if TYPE_CHECKING:  # imported where a table is written: `import slamlab.cli.app` stays light
@@ -50,14 +50,14 @@ def write_map(run_dir: Path, grid: GridImage) -> None:
     # map.png: grey levels from the probability itself so uncertain cells are visible
     # (Pillow alone; the bytes plt.imsave(cmap="gray", vmin=0, vmax=1) wrote before).
     shade = np.flipud(1.0 - occupancy_probability(grid.data))
-    with atomic_path(run_dir / "map.png") as tmp:
+    with atomic_path(run_dir / RunFile.MAP_PNG) as tmp:
         write_png(tmp, grey_rgba(shade))
     h, w = img.shape
-    write_bytes(run_dir / "map.pgm", f"P5\n{w} {h}\n255\n".encode("ascii") + img.tobytes())
+    write_bytes(run_dir / RunFile.MAP_PGM, f"P5\n{w} {h}\n255\n".encode("ascii") + img.tobytes())
     ox, oy = grid.origin_xy
     write_text(
-        run_dir / "map.yaml",
-        "image: map.pgm\n"
+        run_dir / RunFile.MAP_YAML,
+        f"image: {RunFile.MAP_PGM}\n"
         f"resolution: {grid.resolution_m:.6f}\n"
         f"origin: [{ox:.6f}, {oy:.6f}, 0.0]\n"
         "negate: 0\n"
@@ -65,30 +65,16 @@ def write_map(run_dir: Path, grid: GridImage) -> None:
         f"free_thresh: {FREE_THRESH}\n",
     )
     write_npz(
-        run_dir / "map_logodds.npz",
+        run_dir / RunFile.MAP_LOGODDS,
         data=grid.data.astype(np.float32),
         resolution_m=np.float64(grid.resolution_m),
         origin_xy=np.asarray(grid.origin_xy, dtype=np.float64),
     )
 
 
-def read_logodds(path: Path) -> GridImage:
-    """The one reader of `map_logodds.npz`: `data` (H, W) float32 log-odds, `resolution_m`
-    (m), `origin_xy` (m) as a GridImage. A file without those arrays raises DataError naming it."""
-    need = ("data", "resolution_m", "origin_xy")
-    with np.load(path) as z:
-        missing = [name for name in need if name not in z]
-        if missing:
-            raise DataError(path, f"missing array(s) {', '.join(missing)} (need {', '.join(need)})")
-        data = np.asarray(z["data"], dtype=np.float32)
-        res = float(np.asarray(z["resolution_m"]).reshape(()))
-        origin = np.asarray(z["origin_xy"], dtype=np.float64).reshape(2)
-    return GridImage(data, res, (float(origin[0]), float(origin[1])))
-
-
 def read_map(run_dir: Path) -> GridImage:
     """A run folder's map (`map_logodds.npz`, see `read_logodds`)."""
-    return read_logodds(Path(run_dir) / "map_logodds.npz")
+    return read_logodds(Path(run_dir) / RunFile.MAP_LOGODDS)
 
 
 def write_consistency(run_dir: Path, series: dict[str, np.ndarray]) -> None:
@@ -96,7 +82,7 @@ def write_consistency(run_dir: Path, series: dict[str, np.ndarray]) -> None:
     replayed (slamlab.eval.consistency)."""
     import pandas as pd
 
-    write_table(Path(run_dir) / "consistency.csv", pd.DataFrame(series))
+    write_table(Path(run_dir) / RunFile.CONSISTENCY, pd.DataFrame(series))
 
 
 def write_table(path: Path, table: pd.DataFrame) -> None:
@@ -114,6 +100,6 @@ def write_steps(run_dir: Path, steps: pd.DataFrame) -> None:
     table = steps.copy()
     if "t" in table:  # epoch times need microseconds, not 9 significant digits
         table["t"] = table["t"].map(lambda v: f"{v:.6f}")
-    write_text(run_dir / "steps.csv", table.to_csv(index=False, float_format="%.9g"))
-    with atomic_path(run_dir / "steps.parquet") as tmp:
+    write_text(run_dir / RunFile.STEPS_CSV, table.to_csv(index=False, float_format="%.9g"))
+    with atomic_path(run_dir / RunFile.STEPS_PARQUET) as tmp:
         steps.to_parquet(tmp, index=False)

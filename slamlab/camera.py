@@ -4,8 +4,8 @@ Conventions (the calibration toolbox that produced the `cameraParam/` files): th
 frame is z forward, x right, y down; (u, v) = (column, row) and (0, 0) is the CENTRE of the
 top-left pixel. A pixel's normalised ray is (x, y) = (X/Z, Y/Z) with
 y = (v - cc_v) / fc_v and x = (u - cc_u) / fc_u - alpha_c y, then the inverse of the lens
-distortion `kc` (k1 k2 p1 p2 k3) when it is undistorted. The simulator's renderer, the texture
-stage's back-projection and the synthetic test frames all take their rays from `pixel_rays`.
+distortion `kc` (k1 k2 p1 p2 k3) when it is undistorted. The simulator's renderer (which also
+renders the tests' frames) and the texture stage's back-projection take their rays from `pixel_rays`.
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ import time
 import traceback
 import warnings
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -27,6 +28,8 @@ from slamlab.datasets.stamps import repeated_stamps
 from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.frames import Relations, Sequence
 from slamlab.interrupt import RunInterrupted, StopOnSigint
+from slamlab.io.run_metrics import STATUS_FAILED, STATUS_INTERRUPTED, RunMetrics
+from slamlab.io.rundir import FirstScan, ParticleRecord, RunDirectory, RunFile, TrajectoryKind
 from slamlab.manifest import build_manifest
 from slamlab.memory import RunPeakMemory
 from slamlab.progress import make_progress
@@ -38,9 +41,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("slamlab")
 
 # Created exclusively when a run starts: two processes given the same folder cannot both run.
-CLAIM_FILE = ".slamlab-run"
-# Files whose presence means a folder already holds a (finished, failed or running) run.
-RUN_MARKERS = (CLAIM_FILE, "metrics.json", "manifest.json", "trajectory.tum")
+CLAIM_FILE = RunFile.CLAIM
 
 
 class RunDirectoryInUse(SlamlabError):
@@ -95,7 +96,7 @@ def claim_run_dir(run_dir: Path) -> None:
     id, so of two runs started together only one gets the folder, and the process that
     claimed it early (the CLI, before Hydra writes `.hydra/`) may claim it again here."""
     run_dir = Path(run_dir)
-    taken = [m for m in RUN_MARKERS if m != CLAIM_FILE and (run_dir / m).exists()]
+    taken: list[str] = RunDirectory(run_dir).holds_run()
     if not taken:
         try:
             fd = os.open(run_dir / CLAIM_FILE, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
@@ -114,45 +115,41 @@ def claim_run_dir(run_dir: Path) -> None:
 
 def claimed_by_this_process(run_dir: Path) -> bool:
     """True if `run_dir`'s claim file names this process."""
-    try:
-        return (Path(run_dir) / CLAIM_FILE).read_text().strip() == str(os.getpid())
-    except OSError:
-        return False
+    return RunDirectory(run_dir).claimed_by_this_process()
 
 
-def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> dict:
+def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> RunMetrics:
     """Runtime and filter statistics common to every dataset."""
     span = float(np.ptp(result.times)) if len(result.times) > 1 else 0.0
     steps = result.steps
     neff = steps["neff"].to_numpy(dtype=float) if len(steps) else np.array([float("nan")])
     runtime = max(result.runtime_s, 1e-9)
-    return {
-        "status": "ok",
-        "dataset": seq.name,
-        "mode": str(cfg.mode),
-        "filter": str(result.extras.get("filter", "course")),
-        "scans": len(result.times),
-        "processed_steps": int(len(steps)),
-        "particles": int(result.particles),
-        "seed": int(cfg.seed),
-        "duration_s": span,
-        "runtime_s": result.runtime_s,
-        "scans_per_s": len(result.times) / runtime,
-        "realtime_factor": span / runtime if span > 0 else float("nan"),
-        "resample_count": int(result.resample_count),
-        "neff_mean": float(np.nanmean(neff)),
-        "neff_min": float(np.nanmin(neff)),
-        "trajectory_fill": result.fill,
+    return RunMetrics(
+        dataset=seq.name,
+        mode=str(cfg.mode),
+        filter=str(result.extras.get("filter", "course")),
+        scans=len(result.times),
+        processed_steps=int(len(steps)),
+        particles=int(result.particles),
+        seed=int(cfg.seed),
+        duration_s=span,
+        runtime_s=result.runtime_s,
+        scans_per_s=len(result.times) / runtime,
+        realtime_factor=span / runtime if span > 0 else float("nan"),
+        resample_count=int(result.resample_count),
+        neff_mean=float(np.nanmean(neff)),
+        neff_min=float(np.nanmin(neff)),
+        trajectory_fill=result.fill,
         # linear / linear_exp weighting: steps where the weights underflowed (all 0) or
         # overflowed (exp(corr) = inf) and uniform weights took over
-        "weighting_underflows": int(result.extras.get("weighting_underflows", 0)),
-        "weighting_overflows": int(result.extras.get("weighting_overflows", 0)),
+        weighting_underflows=int(result.extras.get("weighting_underflows", 0)),
+        weighting_overflows=int(result.extras.get("weighting_overflows", 0)),
         # map cells the matcher read (bilinear field value = 4, hit test = 1): at ~1 ns a read,
         # the least time any kernel doing this search needs
-        "matcher_map_reads": int(result.extras.get("matcher_map_reads", 0)),
+        matcher_map_reads=int(result.extras.get("matcher_map_reads", 0)),
         # MB held by the map(s): shared tiles counted once (rbpf); at the end and at peak
-        "map_memory": {k: v for k, v in result.extras.items() if k.startswith("map_")},
-    }
+        map_memory={k: v for k, v in result.extras.items() if k.startswith("map_")},
+    )
 
 
 def accuracy_metrics(seq: Sequence, result: SlamResult) -> dict:
@@ -234,18 +231,19 @@ def record_first_scan(cfg: DictConfig) -> bool:
 
 def write_recordings(run_dir: Path, result: SlamResult, cfg: DictConfig) -> None:
     """particles.npz, replay.npz and first_scan.npz, when `record.*` asks for them (docs/RUN_DIRECTORY.md)."""
+    run = RunDirectory(run_dir)
     h = result.particle_history
     if h is not None:
         step_scans = np.asarray(result.extras["step_scans"])
-        artifacts.write_npz(run_dir / "particles.npz", t=result.times[step_scans],
-                            poses=h.poses, weights=h.weights, parents=h.parents, resampled=h.resampled)
+        run.write_particles(ParticleRecord(t=result.times[step_scans],
+                                           poses=h.poses, weights=h.weights, parents=h.parents, resampled=h.resampled))
     if result.replay is not None:
         step_scans = np.asarray(result.extras["step_scans"])
-        artifacts.write_npz(run_dir / "replay.npz", scan_index=step_scans[result.replay["step"]],
-                            t=result.times[step_scans[result.replay["step"]]], **result.replay)
+        run.write_replay(scan_index=step_scans[result.replay["step"]],
+                         t=result.times[step_scans[result.replay["step"]]], **result.replay)
     if record_first_scan(cfg) and result.first_scan_xy is not None:
-        artifacts.write_npz(run_dir / "first_scan.npz", points_xy=result.first_scan_xy,
-                            sensor_xy=np.asarray(result.first_scan_origin), pose=result.trajectory[int(result.extras["step_scans"][0])])
+        run.write_first_scan(FirstScan(points_xy=result.first_scan_xy,
+                                       sensor_xy=np.asarray(result.first_scan_origin), pose=result.trajectory[int(result.extras["step_scans"][0])]))
 
 
 def run_texture_stage(seq: Sequence, result: SlamResult, cfg: DictConfig, run_dir: Path) -> dict:
@@ -257,19 +255,20 @@ def run_texture_stage(seq: Sequence, result: SlamResult, cfg: DictConfig, run_di
     from slamlab.texture.pipeline import run_texture, save_texture_outputs, save_truth_texture
     from slamlab.texture.samples import SAMPLE_FRAMES, write_samples
 
+    run = RunDirectory(run_dir)
     occ = artifacts.occupancy_probability(result.log_odds.data)
     out: dict = {}
     slam_tex = run_texture(seq, result.times, result.trajectory, result.log_odds, cfg.ground, cfg.texture,
                            sample_frames=SAMPLE_FRAMES)
-    save_texture_outputs(slam_tex, occ, run_dir, prefix="texture")
+    save_texture_outputs(slam_tex, occ, run.texture_files(TrajectoryKind.SLAM))
     if slam_tex.samples:
-        write_samples(run_dir / "ground_frames.npz", slam_tex.samples)
+        write_samples(run / RunFile.GROUND_FRAMES, slam_tex.samples)
     if seq.ground_truth is not None and seq.ground_truth.floor_texture is not None:
-        save_truth_texture(slam_tex, seq.ground_truth.floor_texture, run_dir / "texture_truth.png")
+        save_truth_texture(slam_tex, seq.ground_truth.floor_texture, run / RunFile.TEXTURE_TRUTH)
     # detection scores do not depend on the trajectory: score the detectors once, with SLAM
     odo_cfg = OmegaConf.merge(cfg.texture, {"evaluate_detectors": []})
     odo_tex = run_texture(seq, result.times, result.odometry, result.log_odds, cfg.ground, odo_cfg)
-    save_texture_outputs(odo_tex, occ, run_dir, prefix="texture_odometry")
+    save_texture_outputs(odo_tex, occ, run.texture_files(TrajectoryKind.ODOMETRY))
     if seq.ground_truth is not None:
         out = texture_metrics(slam_tex, seq.ground_truth)
         out["odometry"] = texture_metrics(odo_tex, seq.ground_truth)
@@ -286,20 +285,21 @@ def run_pipeline(
 ) -> dict:
     """Run SLAM (+ texture) for `cfg` and write every artifact into `run_dir`.
 
-    Returns the metrics dict (also written to metrics.json). User mistakes raise a
+    Returns the metrics as the dict written to metrics.json (`RunMetrics.to_dict`). User mistakes raise a
     SlamlabError; a failed run still writes metrics.json with status "failed" and the error.
     """
     from slamlab.eval.consistency import consistency_metrics
     from slamlab.slam.engine import run_slam, validate_config
 
     run_dir = Path(run_dir)
+    run = RunDirectory(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     claim_run_dir(run_dir)
     t0 = time.perf_counter()
     cpu0 = time.process_time()  # CPU s of this process: comparable when jobs share the cores
     memory = RunPeakMemory()  # this run's own peak, also when a sweep runs many in one process
     stopper: StopOnSigint | None = None
-    metrics: dict | None = None
+    metrics: RunMetrics | None = None
     try:
         require_values(cfg)
         components = validate_config(cfg)
@@ -318,25 +318,25 @@ def run_pipeline(
         cpu_slam = time.process_time() - cpu_slam0
 
         metrics = filter_metrics(seq, result, cfg)
-        metrics["cpu_time_s"] = cpu_slam
-        metrics.update(accuracy_metrics(seq, result))
+        metrics.cpu_time_s = cpu_slam
+        metrics = replace(metrics, **accuracy_metrics(seq, result))
         consistency, consistency_series = consistency_metrics(seq, result.trajectory, result.log_odds, components.map)
-        metrics["consistency"] = consistency
+        metrics.consistency = consistency
 
         # SLAM results first: whatever happens to texture afterwards, these are kept.
         artifacts.write_map(run_dir, result.log_odds)
-        artifacts.write_tum(run_dir / "trajectory.tum", result.times, result.trajectory)
-        artifacts.write_tum(run_dir / "trajectory_causal.tum", result.times, result.causal)
-        artifacts.write_tum(run_dir / "odometry.tum", result.times, result.odometry)
+        run.write_trajectory(TrajectoryKind.SLAM, result.times, result.trajectory)
+        run.write_trajectory(TrajectoryKind.CAUSAL, result.times, result.causal)
+        run.write_trajectory(TrajectoryKind.ODOMETRY, result.times, result.odometry)
         if seq.ground_truth is not None:
-            artifacts.write_tum(run_dir / "groundtruth.tum", result.times, seq.ground_truth.poses[: len(result.times)])
+            run.write_trajectory(TrajectoryKind.GROUNDTRUTH, result.times, seq.ground_truth.poses[: len(result.times)])
         artifacts.write_steps(run_dir, result.steps)
         artifacts.write_consistency(run_dir, consistency_series)
         relations = relation_table(seq, result)
         if relations is not None:
-            artifacts.write_table(run_dir / "relations.csv", relations)
+            artifacts.write_table(run / RunFile.RELATIONS, relations)
         write_recordings(run_dir, result, cfg)
-        artifacts.write_json(run_dir / "manifest.json", build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
+        run.write_manifest(build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
         if stopper.requested:
             raise KeyboardInterrupt
 
@@ -344,17 +344,17 @@ def run_pipeline(
 
         if texture_enabled(seq, cfg.texture):
             try:
-                metrics["texture"] = run_texture_stage(seq, result, cfg, run_dir)
+                metrics.texture = run_texture_stage(seq, result, cfg, run_dir)
             except Exception as exc:  # keep SLAM results; say what went wrong
                 err = user_error(exc) or exc
                 log.error("texture mapping failed, SLAM results kept: %s", err)
-                metrics["texture"] = {"status": "failed", "error": str(err)}
+                metrics.texture = {"status": STATUS_FAILED, "error": str(err)}
 
-        metrics["total_runtime_s"] = time.perf_counter() - t0
-        metrics["total_cpu_time_s"] = time.process_time() - cpu0
-        metrics["peak_memory_mb"] = memory.peak_mb()
-        metrics["peak_memory_scope"] = memory.scope
-        artifacts.write_json(run_dir / "metrics.json", metrics)
+        metrics.total_runtime_s = time.perf_counter() - t0
+        metrics.total_cpu_time_s = time.process_time() - cpu0
+        metrics.peak_memory_mb = memory.peak_mb()
+        metrics.peak_memory_scope = memory.scope
+        run.write_metrics(metrics)
     except KeyboardInterrupt:
         memory.peak_mb()  # stops its sampling thread, if any
         artifacts.remove_partials(run_dir)
@@ -364,25 +364,26 @@ def run_pipeline(
         artifacts.remove_partials(run_dir)
         _write_failure(run_dir, exc)
         raise
-    _log_summary(metrics)
-    return metrics
+    summary = metrics.to_dict()
+    _log_summary(summary)
+    return summary
 
 
-def _record_interruption(run_dir: Path, stopper: StopOnSigint | None, metrics: dict | None) -> RunInterrupted:
+def _record_interruption(run_dir: Path, stopper: StopOnSigint | None, metrics: RunMetrics | None) -> RunInterrupted:
     """metrics.json for a Ctrl-C'd run (status "interrupted"; with the SLAM metrics and
     "partial": true when the map and trajectory so far were written), and the user's line."""
     done, total = (stopper.done, stopper.total) if stopper else (0, 0)
     if metrics is None:  # nothing computed yet (loading, or a second Ctrl-C mid-step)
         where = f"at scan {done}/{total}" if total else "before the first scan"
         message = f"interrupted {where}; no results in {run_dir}"
-        info: dict = {"status": "interrupted", "error": message}
+        info = RunMetrics(status=STATUS_INTERRUPTED, error=message)
     else:
         stage = "" if done < total else " after the SLAM loop"
         message = f"interrupted at scan {done}/{total}{stage}; partial results in {run_dir}"
-        info = {**metrics, "status": "interrupted", "error": message, "partial": True}
-    info.update(interrupted_at_scan=done, scans_total=total)
+        info = replace(metrics, status=STATUS_INTERRUPTED, error=message, partial=True)
+    info = replace(info, interrupted_at_scan=done, scans_total=total)
     try:
-        artifacts.write_json(run_dir / "metrics.json", info)
+        RunDirectory(run_dir).write_metrics(info)
     except OSError:
         pass
     return RunInterrupted(message)
@@ -390,14 +391,15 @@ def _record_interruption(run_dir: Path, stopper: StopOnSigint | None, metrics: d
 
 def _write_failure(run_dir: Path, exc: BaseException) -> None:
     """metrics.json with the error, so sweep reports show the failed run."""
-    if (run_dir / "metrics.json").exists():
+    run = RunDirectory(run_dir)
+    if (run / RunFile.METRICS).exists():
         return
     err = user_error(exc)
-    info = {"status": "failed", "error": str(err or exc) or type(exc).__name__}
+    info = RunMetrics(status=STATUS_FAILED, error=str(err or exc) or type(exc).__name__)
     if err is None:
-        info["traceback"] = "".join(traceback.format_exception(exc))
+        info.traceback = "".join(traceback.format_exception(exc))
     try:
-        artifacts.write_json(run_dir / "metrics.json", info)
+        run.write_metrics(info)
     except OSError:
         pass
 

@@ -16,6 +16,7 @@ from pathlib import Path
 import yaml
 from omegaconf import OmegaConf
 
+from slamlab.io.rundir import RunFile
 from slamlab.run_compare import first_nested_difference, value_at
 
 PRESET_GROUP = "experiment"
@@ -46,7 +47,7 @@ def _key(override: str) -> str:
 
 def read_origin(run_dir: Path) -> RunOrigin:
     """The preset and overrides saved by Hydra in `RUN_DIR/.hydra/overrides.yaml`."""
-    path = Path(run_dir) / ".hydra" / "overrides.yaml"
+    path = Path(run_dir) / RunFile.HYDRA_OVERRIDES
     overrides = [str(o) for o in (yaml.safe_load(path.read_text()) or [])] if path.exists() else []
     presets = [o.split("=", 1)[1] for o in overrides if _key(o) == PRESET_GROUP and "=" in o]
     rest = [o for o in overrides if _key(o) != PRESET_GROUP]
@@ -76,7 +77,7 @@ def preset_violation(run_dir: Path, preset: str) -> str | None:
         frozen = compose_preset(preset, origin.overrides)
     except HydraException as exc:
         return f"preset {preset!r} cannot be composed: {str(exc).splitlines()[0]}"
-    saved = OmegaConf.to_container(OmegaConf.load(Path(run_dir) / ".hydra" / "config.yaml"), resolve=False)
+    saved = OmegaConf.to_container(OmegaConf.load(Path(run_dir) / RunFile.HYDRA_CONFIG), resolve=False)
     wanted = OmegaConf.to_container(frozen, resolve=False)
     diff = first_nested_difference(saved, wanted, lambda _, key: key in PATH_KEYS)
     if diff is None:

@@ -16,10 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
+from slamlab.io.atomic import TMP_MARK
+from slamlab.io.rundir import RECORDS, RunFile
+
 # Records about the run, not results: the report and log hold timings, the manifest the
-# machine, folder and commit; .hydra/ is the config the re-run was made from. Log files
-# (`*.log`) are records too.
-NOT_RESULTS = frozenset({"report.html", "slamlab.log", "manifest.json", ".slamlab-run", ".hydra"})
+# machine, folder and commit; .hydra/ is the config the re-run was made from (the run
+# directory contract's RECORDS). Log files (`*.log`) are records too.
+NOT_RESULTS = RECORDS
 # Metrics (and step columns) that measure the machine, not the algorithm.
 VOLATILE = re.compile(r"(runtime|_per_s$|realtime|memory|(^|_)ms(_|$)|time_s$)")
 TEXT_SUFFIXES = (".tum", ".yaml", ".txt")
@@ -33,7 +36,7 @@ def result_files(run_dir: Path) -> set[str]:
     for p in run_dir.rglob("*"):
         rel = p.relative_to(run_dir)
         if (p.is_file() and rel.parts[0] not in NOT_RESULTS and rel.suffix != ".log"
-                and not rel.name.startswith(".partial-")):
+                and not rel.name.startswith(TMP_MARK)):
             names.add(rel.as_posix())
     return names
 
@@ -160,9 +163,9 @@ def _bytes_difference(a: Path, b: Path) -> str | None:
 
 
 def _comparer(name: str) -> Callable[[Path, Path], str | None]:
-    if name == "metrics.json":
+    if name == RunFile.METRICS:
         return _metrics_difference
-    if name.startswith("steps.") and name.endswith((".csv", ".parquet")):
+    if name in (RunFile.STEPS_CSV, RunFile.STEPS_PARQUET):
         return _table_difference
     suffix = Path(name).suffix
     if suffix == ".npz":
@@ -176,7 +179,7 @@ def _comparer(name: str) -> Callable[[Path, Path], str | None]:
 
 def compared_order(names: set[str]) -> list[str]:
     """Trajectories first (the most telling difference), then the rest by name."""
-    return sorted(names, key=lambda n: (not n.endswith(".tum"), n != "steps.csv", n))
+    return sorted(names, key=lambda n: (not n.endswith(".tum"), n != RunFile.STEPS_CSV, n))
 
 
 def compare_runs(original: Path, rerun: Path) -> str | None:

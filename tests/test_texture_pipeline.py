@@ -14,6 +14,7 @@ from slamlab.datasets.sim.calib import default_calibration
 from slamlab.errors import ConfigError, DataError
 from slamlab.eval.texture import texture_metrics
 from slamlab.frames import GridImage
+from slamlab.io.rundir import RunDirectory
 from slamlab.texture.pipeline import (
     TextureResult,
     interpolate_poses,
@@ -21,7 +22,7 @@ from slamlab.texture.pipeline import (
     save_texture_outputs,
     texture_enabled,
 )
-from slamlab.texture.synthetic import scaled_calibration, synthetic_sequence
+from synthetic_rgbd import scaled_calibration, synthetic_sequence
 
 CONF = Path(__file__).resolve().parents[1] / "slamlab" / "conf"
 GROUND = OmegaConf.load(CONF / "ground" / "threshold.yaml")
@@ -39,7 +40,7 @@ def texture_cfg(**over) -> OmegaConf:
 def seq():
     calib = scaled_calibration(default_calibration(), 0.25)
     poses = np.array([[0.25 * i, 0.05 * i, 0.08 * i] for i in range(8)])
-    return synthetic_sequence(calib, poses, head_pitch_rad=0.6, wall_x_m=3.5, noise_m=0.002)
+    return synthetic_sequence(calib, poses, head_pitch_rad=0.6, wall_x_m=3.5, noise_mm=2.0)
 
 
 @pytest.fixture(scope="module")
@@ -210,7 +211,7 @@ def test_interpolate_poses():
 def test_save_outputs(seq, grid, tmp_path):
     res = run_texture(seq, _times(seq), seq.ground_truth.poses, grid, GROUND, texture_cfg())
     occ = np.full(grid.data.shape, 0.5)
-    out = save_texture_outputs(res, occ, tmp_path)
+    out = save_texture_outputs(res, occ, RunDirectory(tmp_path).texture_files("slam"))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["floor.ply", "texture.png", "texture_over_map.png"]
     import matplotlib.pyplot as plt
     import open3d as o3d
@@ -223,18 +224,18 @@ def test_save_outputs(seq, grid, tmp_path):
     assert over.shape[:2] == grid.data.shape
     cloud = o3d.io.read_point_cloud(str(out["cloud"]))
     assert 0 < len(cloud.points) <= res.floor_points.shape[0] and cloud.has_colors()
-    save_texture_outputs(res, occ, tmp_path, prefix="texture_odometry")
+    save_texture_outputs(res, occ, RunDirectory(tmp_path).texture_files("odometry"))
     assert {"texture_odometry.png", "texture_odometry_over_map.png", "floor_odometry.ply"} <= {p.name for p in tmp_path.iterdir()}
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".partial")]
     with pytest.raises(ValueError):
-        save_texture_outputs(res, np.zeros((3, 3)), tmp_path / "x")
+        save_texture_outputs(res, np.zeros((3, 3)), RunDirectory(tmp_path / "x").texture_files("slam"))
 
 
 def test_save_empty_result(seq, grid, tmp_path):
     s = dataclasses.replace(seq, rgbd=lambda: iter([]))
     res = run_texture(s, _times(seq), seq.ground_truth.poses, grid, GROUND, texture_cfg())
     assert res.frames_total == 0 and res.messages
-    save_texture_outputs(res, np.zeros(grid.data.shape), tmp_path)
+    save_texture_outputs(res, np.zeros(grid.data.shape), RunDirectory(tmp_path).texture_files("slam"))
     assert (tmp_path / "texture.png").is_file() and (tmp_path / "floor.ply").is_file()
 
 

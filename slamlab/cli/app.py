@@ -21,8 +21,8 @@ from omegaconf import DictConfig
 from slamlab.cli.overrides import check_overrides
 from slamlab.errors import SlamlabError
 from slamlab.interrupt import EXIT_INTERRUPTED, RunInterrupted
+from slamlab.io.rundir import RunFile
 from slamlab.pipeline import (
-    CLAIM_FILE,
     RunDirectoryInUse,
     claim_run_dir,
     claimed_by_this_process,
@@ -84,7 +84,7 @@ def _hydra_main(cfg: DictConfig) -> None:
         if err is None and not multirun:
             raise  # a bug: keep the traceback
         log.error("%s", err or exc)
-        log.error("run failed; details in %s", run_dir / "metrics.json")
+        log.error("run failed; details in %s", run_dir / RunFile.METRICS)
         if not multirun:
             sys.exit(2)
 
@@ -115,9 +115,9 @@ def _release_unused_claim(claimed: tuple[Path, bool] | None) -> None:
     if claimed is None:
         return
     run_dir, created = claimed
-    if (run_dir / "metrics.json").exists() or not claimed_by_this_process(run_dir):
+    if (run_dir / RunFile.METRICS).exists() or not claimed_by_this_process(run_dir):
         return
-    (run_dir / CLAIM_FILE).unlink(missing_ok=True)
+    (run_dir / RunFile.CLAIM).unlink(missing_ok=True)
     if created:
         try:
             run_dir.rmdir()  # only if empty

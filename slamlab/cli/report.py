@@ -47,18 +47,17 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the `slamlab-report` console script; returns the exit code."""
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="slamlab-report: %(levelname)s: %(message)s")
-    from slamlab.report.rundir import REPORT_FILE, find_run_dirs
+    from slamlab.io.rundir import RUN_MARKERS, RunFile
+    from slamlab.report.rundir import find_run_dirs
     from slamlab.report.sweep_report import build_sweep_report
 
     if args.out is None:
-        out_dir, filename = _default_out_dir(), REPORT_FILE
+        out_dir, filename = _default_out_dir(), RunFile.REPORT
     elif args.out.suffix.lower() in (".html", ".htm"):
         out_dir, filename = args.out.parent, args.out.name
     else:
-        out_dir, filename = args.out, REPORT_FILE
-    from slamlab.pipeline import RUN_MARKERS
-
-    if filename == REPORT_FILE and any((out_dir / m).exists() for m in RUN_MARKERS):
+        out_dir, filename = args.out, RunFile.REPORT
+    if filename == RunFile.REPORT and any((out_dir / m).exists() for m in RUN_MARKERS):
         # a run's own report.html lives there: a comparison page must not replace it
         print(f"slamlab-report: error: {out_dir} is a run directory; choose another -o", file=sys.stderr)
         return 2
@@ -68,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
             from slamlab.report.run_report import write_run_report
 
             for run in find_run_dirs(args.dirs):
-                if not (run / REPORT_FILE).is_file():
+                if not (run / RunFile.REPORT).is_file():
                     write_run_report(run)
         path = build_sweep_report(args.dirs, out_dir, args.title, filename=filename)
     except SlamlabError as exc:

@@ -13,12 +13,13 @@ Exit status: 0 identical, 1 different or not the required preset (one line says 
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+from slamlab.io.run_metrics import STATUS_OK
+from slamlab.io.rundir import RunDirectory, RunFile
 from slamlab.provenance import preset_violation, read_origin
 from slamlab.run_compare import compare_runs
 
@@ -28,10 +29,10 @@ def rerun(run_dir: Path, out_dir: Path) -> subprocess.CompletedProcess:
 
     The re-run's progress and log lines go to this process's stderr, as a run's do; its
     errors are captured so they can be shown after the verdict."""
-    manifest = json.loads((run_dir / "manifest.json").read_text())
+    manifest = RunDirectory(run_dir).read_manifest() or {}
     cmd = [
         sys.executable, "-m", "slamlab.cli.app",
-        "--config-path", str((run_dir / ".hydra").resolve()), "--config-name", "config",
+        "--config-path", str((run_dir / RunFile.HYDRA_DIR).resolve()), "--config-name", "config",
         # slamlab's own config folder for its log format (the saved config has no defaults list)
         "hydra.searchpath=[pkg://slamlab.conf]", "hydra/job_logging=slamlab",
         f"hydra.run.dir={out_dir}", "report=false", "progress=auto",
@@ -53,11 +54,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep", type=Path, default=None, help="write the re-run here instead of a temporary folder")
     args = ap.parse_args(argv)
     run_dir: Path = args.run_dir
-    for need in ("metrics.json", "manifest.json", ".hydra/config.yaml"):
+    for need in (RunFile.METRICS, RunFile.MANIFEST, RunFile.HYDRA_CONFIG):
         if not (run_dir / need).exists():
             print(f"slamlab-verify: {run_dir} is not a finished run ({need} missing)", file=sys.stderr)
             return 2
-    if json.loads((run_dir / "metrics.json").read_text()).get("status") != "ok":
+    metrics = RunDirectory(run_dir).read_metrics()
+    if metrics is None or metrics.status != STATUS_OK:
         print(f"slamlab-verify: {run_dir} did not finish successfully; nothing to compare", file=sys.stderr)
         return 2
     print(f"run made with: {read_origin(run_dir).describe()}", flush=True)

@@ -44,6 +44,11 @@ def write_json(path: Path, obj: object) -> None:
     write_text(path, json.dumps(_json_safe(obj), indent=2, sort_keys=False) + "\n")
 
 
+def json_ready(obj: object) -> object:
+    """`obj` as `write_json` writes it: NaN and inf as None, numpy scalars and arrays as Python."""
+    return _json_safe(obj)
+
+
 def _json_safe(obj: object) -> object:
     if isinstance(obj, dict):
         return {str(k): _json_safe(v) for k, v in obj.items()}

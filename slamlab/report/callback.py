@@ -21,6 +21,8 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
+from slamlab.io.rundir import SweepFile
+
 log = logging.getLogger(__name__)
 
 # Failed runs of the last sweep this process ran, one line each (`job 1 (particles=0): error`):
@@ -51,7 +53,7 @@ class SweepReportCallback(Callback):
     config (the per-run switch) switches it off too, so one knob controls all reports.
     """
 
-    def __init__(self, enabled: bool = True, filename: str = "report.html") -> None:
+    def __init__(self, enabled: bool = True, filename: str = SweepFile.REPORT) -> None:
         self.enabled = enabled
         self.filename = filename
         self._start_dir: Path | None = None
@@ -74,7 +76,7 @@ class SweepReportCallback(Callback):
         """The sweep directory that holds this multirun's jobs."""
         candidates = [p for p in (self._sweep_dir(config), self._start_dir) if p is not None]
         for p in candidates:
-            if (p / "multirun.yaml").is_file():
+            if (p / SweepFile.MULTIRUN).is_file():
                 return p
         # Fallback: if ${now} re-resolved to another time, take the newest sibling sweep
         # created since this multirun started.
@@ -82,7 +84,7 @@ class SweepReportCallback(Callback):
             parent = p.parent
             if parent.is_dir():
                 recent = [d for d in parent.iterdir()
-                          if (d / "multirun.yaml").is_file() and d.stat().st_mtime >= self._start_time - 1.0]
+                          if (d / SweepFile.MULTIRUN).is_file() and d.stat().st_mtime >= self._start_time - 1.0]
                 if recent:
                     return max(recent, key=lambda d: d.stat().st_mtime)
         return None

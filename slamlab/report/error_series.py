@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import numpy as np
-import pandas as pd
 
 from slamlab.geometry import wrap_angle
-from slamlab.report.rundir import RELATIONS_FILE, RunDir, Trajectory
+from slamlab.io.rundir import RunFile
+from slamlab.report.rundir import RunDir, Trajectory
 
 ATE = "ate"
 RELATIONS = "relations"
@@ -50,12 +50,9 @@ def ate_series(run: RunDir) -> ErrorSeries | None:
 def relation_series(run: RunDir) -> ErrorSeries | None:
     """Translational error of each relation the run covers, at the time of its later scan,
     from the run's relations.csv; None without one."""
-    p = run.file(RELATIONS_FILE)
     est = run.load_trajectory("slam")
-    if p is None or est is None:
-        return None
-    table = pd.read_csv(p)
-    if not len(table):
+    table = run.files.read_table(RunFile.RELATIONS) if est is not None else None
+    if table is None or not len(table):
         return None
     t = np.maximum(table["t1"].to_numpy(float), table["t2"].to_numpy(float)) - est.t[0]
     order = np.argsort(t, kind="stable")

@@ -9,7 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from slamlab.report.figures import fig_to_data_uri, plt
-from slamlab.report.rundir import GROUND_FRAMES_FILE, RunDir
+from slamlab.io.rundir import RunFile
+from slamlab.report.rundir import RunDir
 
 FLOOR_TINT = np.array([0.1, 0.85, 0.2])  # detected floor (correct, or no labels)
 FALSE_TINT = np.array([0.95, 0.1, 0.1])  # detected floor where the label says not floor
@@ -39,11 +40,9 @@ def tint(base: np.ndarray, mask: np.ndarray, truth: np.ndarray | None, alpha: fl
 def ground_frames_section(run: RunDir) -> GroundFrames | None:
     """One figure: a row per sample frame, columns colour image | registered RGB-D | one per
     detector; None when the run kept no frames."""
-    p = run.file(GROUND_FRAMES_FILE)
-    if p is None:
+    z = run.files.read_arrays(RunFile.GROUND_FRAMES)
+    if z is None:
         return None
-    with np.load(p) as z:
-        z = {k: np.asarray(z[k]) for k in z.files}
     n = len(z["index"])
     names = [str(v) for v in z["detectors"]]
     if n == 0:

@@ -18,7 +18,8 @@ import numpy as np
 
 from slamlab.eval.trajectory import sample_onto
 from slamlab.frames import GridImage
-from slamlab.report.rundir import REPLAY_FILE, RunDir, Trajectory
+from slamlab.io.rundir import RunFile
+from slamlab.report.rundir import RunDir, Trajectory
 from slamlab.slam.replay import snapshot_steps
 
 FRAME_PX = 640  # longest side of a replay frame (pixels)
@@ -68,11 +69,9 @@ def frame_image(pixels: np.ndarray, extent: np.ndarray, window: tuple[float, flo
 
 def replay_section(run: RunDir) -> ReplaySection | None:
     """The replay of a run with replay.npz (record.replay), or None."""
-    path = run.file(REPLAY_FILE)
-    if path is None:
+    z = run.files.read_arrays(RunFile.REPLAY)
+    if z is None:
         return None
-    with np.load(path) as z:
-        z = {k: np.asarray(z[k]) for k in z.files}
     shapes, extents, counts = z["map_shape"], z["map_extent"], z["scan_count"]
     if not len(shapes):
         return None
@@ -122,4 +121,4 @@ def replay_size_bytes(section: ReplaySection) -> int:
     return sum(len(f) for f in section.frames) + len(section.data_json)
 
 
-__all__ = ["REPLAY_FILE", "ReplaySection", "frame_image", "replay_section", "replay_size_bytes"]
+__all__ = ["ReplaySection", "frame_image", "replay_section", "replay_size_bytes"]

@@ -18,7 +18,8 @@ from slamlab.report import error_figures, figures, particle_sections
 from slamlab.report.ground_frames import ground_frames_section
 from slamlab.report.replay_section import replay_section
 from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
-from slamlab.report.rundir import RELATIONS_FILE, REPORT_FILE, TRUTH_TEXTURE_FILE, RunDir, flatten, load_run
+from slamlab.io.rundir import RunFile
+from slamlab.report.rundir import RunDir, flatten, load_run
 
 # Names the resampling threshold may have in the resampler config group, tried in order.
 # Values <= 1 are a fraction of the particle count (the usual N_eff < N/2 rule).
@@ -132,9 +133,8 @@ def _error_over_time(run: RunDir, trajs: dict[str, Any]) -> tuple[str | None, st
         img = error_figures.ate_over_time(gt, {k: trajs[k] for k in ("odometry", "slam") if trajs.get(k) is not None})
         return img, ("Distance from the true pose at every scan (top) and heading error (bottom), no alignment:"
                      " a rise marks where the estimate drifted, a drop where it recovered (e.g. a loop closed).")
-    p = run.file(RELATIONS_FILE)
-    if p is not None:
-        table = pd.read_csv(p)
+    table = run.files.read_table(RunFile.RELATIONS)
+    if table is not None:
         if len(table):
             return error_figures.relation_error_over_time(table), (
                 f"{len(table)} benchmark relations (relations.csv), each plotted at its start time: the error of the"
@@ -149,7 +149,7 @@ def rerun_commands(run: RunDir) -> tuple[str, str | None]:
     the exact resolved config saved by Hydra, which is what bit-for-bit reproduction needs."""
     overrides = " ".join(shlex.quote(o) for o in run.overrides)
     cmd = ("slamlab " + overrides).strip()
-    hydra_cfg = run.path / ".hydra" / "config.yaml"
+    hydra_cfg = run.path / RunFile.HYDRA_CONFIG
     exact = None
     if hydra_cfg.is_file():
         exact = f"slamlab --config-path {shlex.quote(str(hydra_cfg.parent.resolve()))} --config-name config"
@@ -187,11 +187,11 @@ def render_run_report(run: RunDir) -> str:
     error_img, error_note = _error_over_time(run, trajs)
     textures = []
     captions = {
-        "texture.png": "Floor texture from RGB-D along the SLAM trajectory",
-        TRUTH_TEXTURE_FILE: "The true floor texture (simulated), on the cells the SLAM texture covers",
-        "texture_odometry.png": "Texture along the odometry trajectory (for comparison)",
-        "texture_over_map.png": "SLAM texture over the occupancy map",
-        "texture_odometry_over_map.png": "Odometry texture over the occupancy map",
+        RunFile.TEXTURE: "Floor texture from RGB-D along the SLAM trajectory",
+        RunFile.TEXTURE_TRUTH: "The true floor texture (simulated), on the cells the SLAM texture covers",
+        RunFile.TEXTURE_ODOMETRY: "Texture along the odometry trajectory (for comparison)",
+        RunFile.TEXTURE_OVER_MAP: "SLAM texture over the occupancy map",
+        RunFile.TEXTURE_ODOMETRY_OVER_MAP: "Odometry texture over the occupancy map",
     }
     for name in captions:
         p = run.file(name)
@@ -217,7 +217,7 @@ def render_run_report(run: RunDir) -> str:
         )
 
     consistency_img = None
-    cons_path = run.file("consistency.csv")
+    cons_path = run.file(RunFile.CONSISTENCY)
     if cons_path is not None:
         series = pd.read_csv(cons_path)
         if len(series) > 1:  # one replayed scan has no "over time" (as for N_eff above)
@@ -241,7 +241,7 @@ def render_run_report(run: RunDir) -> str:
         if value is not None and value != "":
             info.append((label, str(value)))
 
-    config_source = "manifest.json" if isinstance(man.get("config"), dict) else ".hydra/config.yaml"
+    config_source = RunFile.MANIFEST if isinstance(man.get("config"), dict) else RunFile.HYDRA_CONFIG
     config_yaml = yaml.safe_dump(run.config, sort_keys=False, default_flow_style=False) if run.config else "(no config saved)"
 
     files = []
@@ -296,4 +296,4 @@ def write_run_report(run_dir: Path) -> Path:
     `run_dir` is not a run directory at all."""
     run = load_run(Path(run_dir))
     html = render_run_report(run)
-    return atomic_write_text(run.path / REPORT_FILE, html)
+    return atomic_write_text(run.path / RunFile.REPORT, html)

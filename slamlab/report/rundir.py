@@ -9,7 +9,6 @@ still loaded, with its error and the tail of its log, so a sweep report can show
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -18,32 +17,12 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-import yaml
 
-from slamlab import artifacts
 from slamlab.errors import SlamlabError
-
-# File names are a contract (docs/RUN_DIRECTORY.md); keep them in one place.
-METRICS_FILE = "metrics.json"
-MANIFEST_FILE = "manifest.json"
-MAP_FILE = "map_logodds.npz"
-STEPS_CSV = "steps.csv"
-STEPS_PARQUET = "steps.parquet"
-TRAJECTORY_FILE = "trajectory.tum"
-CAUSAL_FILE = "trajectory_causal.tum"
-ODOMETRY_FILE = "odometry.tum"
-GROUNDTRUTH_FILE = "groundtruth.tum"
-PARTICLES_FILE = "particles.npz"  # record.particles
-FIRST_SCAN_FILE = "first_scan.npz"  # record.first_scan
-# Pairs (SLAM, odometry) so the page shows them side by side.
-TRUTH_TEXTURE_FILE = "texture_truth.png"  # simulated data: the true floor on the textured cells
-RELATIONS_FILE = "relations.csv"  # logs with benchmark relations: error per relation
-GROUND_FRAMES_FILE = "ground_frames.npz"
-REPLAY_FILE = "replay.npz"  # record.replay: snapshots for the replay  # RGB-D runs: sample frames of ground detection
-LOG_FILE = "slamlab.log"
-ERROR_FILE = "error.txt"
-REPORT_FILE = "report.html"
-HYDRA_DIR = ".hydra"
+from slamlab.io.atomic import json_ready
+from slamlab.io.rundir import FirstScan, ParticleRecord, RunDirectory, RunFile, TrajectoryKind  # noqa: F401 (types the report modules use)
+from slamlab.io.rundir import read_logodds as read_logodds_file
+from slamlab.io.tum import read_tum as read_tum_file
 
 STATUS_OK = "ok"
 STATUS_FAILED = "failed"
@@ -77,33 +56,6 @@ class LogOddsMap:
         h, w = self.data.shape
         ox, oy = self.origin_xy
         return (ox, ox + w * self.resolution_m, oy, oy + h * self.resolution_m)
-
-
-@dataclass(frozen=True, slots=True)
-class ParticleRecord:
-    """particles.npz: K steps of N particles. `t` (K,) s; `poses` (K, N, 3) after the
-    update, before resampling; `weights` (K, N) normalised; `parents` (K, N) index into the
-    previous step's particles; `resampled` (K,) bool."""
-
-    t: np.ndarray
-    poses: np.ndarray
-    weights: np.ndarray
-    parents: np.ndarray
-    resampled: np.ndarray
-
-    @property
-    def particles(self) -> int:
-        return int(self.poses.shape[1])
-
-
-@dataclass(frozen=True, slots=True)
-class FirstScan:
-    """first_scan.npz: `points_xy` (M, 2) the first scan's points in the world frame (m),
-    `sensor_xy` (2,) where the lidar was, `pose` (3,) the robot's pose then."""
-
-    points_xy: np.ndarray
-    sensor_xy: np.ndarray
-    pose: np.ndarray
 
 
 @dataclass(slots=True)
@@ -177,10 +129,14 @@ class RunDir:
                 plain.add(name)
         return out
 
+    @property
+    def files(self) -> RunDirectory:
+        """The run directory contract on this folder (names, readers)."""
+        return RunDirectory(self.path)
+
     def file(self, name: str) -> Path | None:
         """The path of an artifact if it exists, else None."""
-        p = self.path / name
-        return p if p.is_file() else None
+        return self.files.file(name)
 
     # --- lazily loaded arrays ------------------------------------------------------------
     def _cached(self, key: str, loader):
@@ -190,98 +146,54 @@ class RunDir:
 
     def load_map(self) -> LogOddsMap | None:
         """The log-odds grid, or None when the run wrote no (readable) map."""
-        return self._cached("map", lambda: read_logodds(self.path / MAP_FILE))
+        return self._cached("map", lambda: _log_odds_map(self.files.read_map()))
 
     def load_trajectory(self, which: str = "slam") -> Trajectory | None:
         """One of "slam", "causal", "odometry", "groundtruth"; None when absent."""
-        files = {
-            "slam": TRAJECTORY_FILE,
-            "causal": CAUSAL_FILE,
-            "odometry": ODOMETRY_FILE,
-            "groundtruth": GROUNDTRUTH_FILE,
-        }
-        name = files[which]
-        return self._cached("traj:" + which, lambda: read_tum(self.path / name))
+        kind = TrajectoryKind(which)
+        return self._cached("traj:" + which, lambda: _trajectory(self.files.read_trajectory(kind)))
 
     def load_particles(self) -> ParticleRecord | None:
         """Every particle's pose and weight per step (record.particles), or None."""
-        return self._cached("particles", lambda: _read_npz(self.path / PARTICLES_FILE, ParticleRecord))
+        return self._cached("particles", self.files.read_particles)
 
     def load_first_scan(self) -> FirstScan | None:
         """The first scan in the world frame (record.first_scan), or None."""
-        return self._cached("first_scan", lambda: _read_npz(self.path / FIRST_SCAN_FILE, FirstScan))
+        return self._cached("first_scan", self.files.read_first_scan)
 
     def load_steps(self) -> pd.DataFrame | None:
         """The per-step table (steps.parquet preferred, steps.csv otherwise), or None."""
-        return self._cached("steps", lambda: read_steps(self.path))
+        return self._cached("steps", self.files.read_steps)
 
 
-# --- file readers ------------------------------------------------------------------------
-def read_tum(path: Path) -> Trajectory | None:
-    """A run's TUM trajectory (slamlab.artifacts.read_tum); None if the file is missing or
-    holds no poses."""
-    if not path.is_file():
+# --- file readers (the contract reads, these wrap for the figures) -----------------------
+def _trajectory(read: tuple[np.ndarray, np.ndarray] | None) -> Trajectory | None:
+    if read is None:
         return None
-    t, poses = artifacts.read_tum(path)
-    if t.size == 0:
-        return None
+    t, poses = read
     return Trajectory(t=t, xy=poses[:, :2].copy(), yaw=poses[:, 2])
 
 
-def read_logodds(path: Path) -> LogOddsMap | None:
-    """Read map_logodds.npz (`slamlab.artifacts.read_logodds`); None if missing."""
-    if not path.is_file():
+def _log_odds_map(grid: Any) -> LogOddsMap | None:
+    if grid is None:
         return None
-    grid = artifacts.read_logodds(path)
     return LogOddsMap(data=grid.data, resolution_m=grid.resolution_m, origin_xy=grid.origin_xy)
 
 
-def _read_npz(path: Path, record: type) -> Any:
-    """An .npz written by the pipeline as `record` (its fields are the array names); None
-    if the file is missing."""
-    if not path.is_file():
-        return None
-    names = record.__dataclass_fields__
-    with np.load(path) as z:
-        missing = [n for n in names if n not in z]
-        if missing:
-            raise SlamlabError(f"{path}: missing array(s) {', '.join(missing)} (need {', '.join(names)})")
-        return record(**{n: np.asarray(z[n]) for n in names})
+def read_tum(path: Path) -> Trajectory | None:
+    """A TUM trajectory file (slamlab.io.tum.read_tum); None if the file is missing or holds
+    no poses."""
+    return _trajectory(read_tum_file(path) if path.is_file() else None)
+
+
+def read_logodds(path: Path) -> LogOddsMap | None:
+    """A map_logodds.npz (slamlab.io.rundir.read_logodds); None if missing."""
+    return _log_odds_map(read_logodds_file(path) if path.is_file() else None)
 
 
 def read_steps(run_dir: Path) -> pd.DataFrame | None:
-    """The per-step table; Parquet first (typed, faster), CSV as fallback. None if absent."""
-    pq = run_dir / STEPS_PARQUET
-    if pq.is_file():
-        try:
-            return pd.read_parquet(pq)
-        except Exception:  # noqa: BLE001 - a broken parquet falls back to the CSV twin
-            pass
-    csv = run_dir / STEPS_CSV
-    if csv.is_file():
-        return pd.read_csv(csv)
-    return None
-
-
-def _read_json(path: Path) -> dict[str, Any] | None:
-    if not path.is_file():
-        return None
-    try:
-        with path.open(encoding="utf-8") as f:
-            obj = json.load(f)
-    except (OSError, json.JSONDecodeError) as exc:
-        raise SlamlabError(f"{path}: not valid JSON ({exc})") from exc
-    return obj if isinstance(obj, dict) else None
-
-
-def _read_yaml(path: Path) -> Any:
-    if not path.is_file():
-        return None
-    try:
-        with path.open(encoding="utf-8") as f:
-            return yaml.safe_load(f)
-    except (OSError, yaml.YAMLError):
-        return None
+    """The per-step table (RunDirectory.read_steps); None if absent."""
+    return RunDirectory(run_dir).read_steps()
 
 
 def _tail(path: Path, max_lines: int = 40, max_bytes: int = 64_000) -> str | None:
@@ -309,7 +221,7 @@ def _error_from_log(log: str | None) -> str | None:
 
 def is_run_dir(path: Path) -> bool:
     """A run directory has a metrics.json or Hydra's saved .hydra/config.yaml."""
-    return (path / METRICS_FILE).is_file() or (path / HYDRA_DIR / "config.yaml").is_file()
+    return RunDirectory(path).is_run()
 
 
 def load_run(path: Path | str) -> RunDir:
@@ -319,29 +231,30 @@ def load_run(path: Path | str) -> RunDir:
     if not path.is_dir():
         raise SlamlabError(f"{path}: not a directory")
     if not is_run_dir(path):
-        raise SlamlabError(f"{path}: not a run directory (no {METRICS_FILE} and no {HYDRA_DIR}/config.yaml)")
-    metrics = _read_json(path / METRICS_FILE)
-    manifest = _read_json(path / MANIFEST_FILE) or {}
+        raise SlamlabError(f"{path}: not a run directory (no {RunFile.METRICS} and no {RunFile.HYDRA_CONFIG})")
+    files = RunDirectory(path)
+    record = files.read_metrics()
+    # the page shows metrics.json as written: NaN back to null, the file's key order
+    metrics = json_ready(record.to_dict()) if record is not None else None
+    manifest = files.read_manifest() or {}
     config = manifest.get("config") if isinstance(manifest.get("config"), dict) else None
     if config is None:
-        config = _read_yaml(path / HYDRA_DIR / "config.yaml")
+        config = files.read_config()
     if not isinstance(config, dict):
         config = {}
-    overrides = _read_yaml(path / HYDRA_DIR / "overrides.yaml")
-    if not isinstance(overrides, list):
-        overrides = []
+    overrides = files.read_overrides()
 
-    log_tail = _tail(path / LOG_FILE)
-    error_txt = (path / ERROR_FILE).read_text(encoding="utf-8", errors="replace").strip() if (path / ERROR_FILE).is_file() else None
+    log_tail = _tail(path / RunFile.LOG)
+    error_txt = (path / RunFile.ERROR).read_text(encoding="utf-8", errors="replace").strip() if (path / RunFile.ERROR).is_file() else None
     if metrics is None:
         error = error_txt or _error_from_log(log_tail)
         status = STATUS_FAILED if error else STATUS_INCOMPLETE
         if status == STATUS_INCOMPLETE:
-            error = f"no {METRICS_FILE}: the run was interrupted or is still running"
+            error = f"no {RunFile.METRICS}: the run was interrupted or is still running"
         metrics = {}
     else:
-        status = str(metrics.get("status", STATUS_OK))
-        error = metrics.get("error") or error_txt
+        status = record.status or STATUS_OK  # files from before `status` was written
+        error = record.error or error_txt
         if status != STATUS_OK and not error:
             error = _error_from_log(log_tail) or f"status '{status}' without an error message"
     return RunDir(
@@ -385,7 +298,7 @@ def find_run_dirs(paths: list[Path] | tuple[Path, ...]) -> list[Path]:
                 dirs[:] = sorted(d for d in dirs if not d.startswith("."))
         if not runs:
             raise SlamlabError(
-                f"{p}: no run directories found (looked for {METRICS_FILE} or {HYDRA_DIR}/config.yaml)"
+                f"{p}: no run directories found (looked for {RunFile.METRICS} or {RunFile.HYDRA_CONFIG})"
             )
         for r in sorted(runs, key=_natural_key):
             found.setdefault(r.resolve(), None)

@@ -28,13 +28,11 @@ from slamlab.report import figures, sweep_figures
 from slamlab.report.columns import ACCURACY_KEYS, HEADLINE_GROUPS, METRIC_BY_KEY, METRICS, get_metric
 from slamlab.report.error_series import ATE, error_series
 from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
+from slamlab.io.rundir import RunDirectory, RunFile, SweepFile, read_yaml
 from slamlab.report.rundir import (
-    GROUNDTRUTH_FILE,
-    REPORT_FILE,
     STATUS_FAILED,
     STATUS_OK,
     RunDir,
-    _read_yaml,
     find_run_dirs,
     flatten,
     load_run,
@@ -101,11 +99,11 @@ def _load_safely(path: Path) -> RunDir:
     try:
         return load_run(path)
     except SlamlabError as exc:
-        overrides = _read_yaml(path / ".hydra" / "overrides.yaml")
-        config = _read_yaml(path / ".hydra" / "config.yaml")
+        files = RunDirectory(path)
+        config = files.read_config()
         return RunDir(path=path, status=STATUS_FAILED, error=f"unreadable run directory: {exc}", metrics={},
                       manifest={}, config=config if isinstance(config, dict) else {},
-                      overrides=[str(o) for o in overrides] if isinstance(overrides, list) else [])
+                      overrides=files.read_overrides())
 
 
 def _parse_value(v: Any) -> Any:
@@ -220,7 +218,7 @@ def html_table(df: pd.DataFrame, runs: Sequence[RunDir], swept: Sequence[str], o
     rows: list[Row] = []
     for i, r in enumerate(runs):
         rec = df.iloc[i]
-        report = r.path / REPORT_FILE
+        report = r.path / RunFile.REPORT
         cells = [Cell(str(rec["run"]), "text", None, _rel_href(report, out_dir) if report.is_file() else None),
                  Cell(r.status, "text")]
         for k in swept:
@@ -332,7 +330,7 @@ def _sweep_commands(runs: Sequence[RunDir]) -> list[str]:
     """`slamlab -m ...` for every sweep the runs came from (multirun.yaml beside the jobs)."""
     cmds: list[str] = []
     for root in dict.fromkeys(r.path.parent for r in runs):
-        mr = _read_yaml(root / "multirun.yaml")
+        mr = read_yaml(root / SweepFile.MULTIRUN)
         if not isinstance(mr, dict):
             continue
         task = (((mr.get("hydra") or {}).get("overrides") or {}).get("task")) or []
@@ -502,7 +500,7 @@ def build_sweep_report(
     out_dir: Path,
     title: str | None = None,
     *,
-    filename: str = REPORT_FILE,
+    filename: str = SweepFile.REPORT,
 ) -> Path:
     """Compare every run found at or under `dirs`; write `out_dir/<filename>` (self-contained
     HTML, atomically) and `out_dir/runs.csv` (the table). Returns the HTML path.
@@ -567,7 +565,7 @@ def build_sweep_report(
         errors_img=errors_img,
         errors_note=errors_note,
         maps=maps,
-        has_groundtruth=any(runs[i].file(GROUNDTRUTH_FILE) is not None for i in ok_idx),
+        has_groundtruth=any(runs[i].file(RunFile.GROUNDTRUTH) is not None for i in ok_idx),
         overlay_img=overlay_img,
         overlay_note=overlay_note,
         neff_img=neff_img,
@@ -576,5 +574,5 @@ def build_sweep_report(
         base_config=yaml.safe_dump(base, sort_keys=False) if base else None,
     )
     csv = df.drop(columns=["particles_metric"])
-    atomic_write_text(out_dir / "runs.csv", csv.to_csv(index=False))
+    atomic_write_text(out_dir / SweepFile.RUNS_CSV, csv.to_csv(index=False))
     return atomic_write_text(out_dir / filename, html)

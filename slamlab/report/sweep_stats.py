@@ -19,7 +19,8 @@ import yaml
 
 from slamlab.report.columns import METRIC_BY_KEY
 from slamlab.report.html import fmt_number
-from slamlab.report.rundir import HYDRA_DIR, METRICS_FILE, STATUS_OK, RunDir
+from slamlab.io.rundir import RunFile
+from slamlab.report.rundir import STATUS_OK, RunDir
 
 SEED_KEY = "seed"
 # Wall time above this multiple of CPU time means the run waited for the cores.
@@ -170,7 +171,7 @@ class RuntimeCheck:
 def _span(run: RunDir) -> tuple[float, float] | None:
     """(start, end) as file times: Hydra writes .hydra/config.yaml when a job starts, the
     pipeline writes metrics.json when it ends."""
-    start_file, end_file = run.path / HYDRA_DIR / "config.yaml", run.path / METRICS_FILE
+    start_file, end_file = run.path / RunFile.HYDRA_CONFIG, run.path / RunFile.METRICS
     if not (start_file.is_file() and end_file.is_file()):
         return None
     return os.stat(start_file).st_mtime, os.stat(end_file).st_mtime

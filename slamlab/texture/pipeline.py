@@ -34,6 +34,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from slamlab.camera import scaled_intrinsics
 from slamlab.io.atomic import atomic_path
+from slamlab.io.rundir import TextureFiles
 from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.frames import GridImage, KinectCalibration, RGBDFrame, Sequence
 from slamlab import geometry
@@ -515,27 +516,25 @@ def save_truth_texture(result: TextureResult, floor_texture: GridImage, path: Pa
 
 
 def save_texture_outputs(
-    result: TextureResult, occupancy_prob: np.ndarray, out_dir: Path, prefix: str = "texture", voxel_m: float | None = None
+    result: TextureResult, occupancy_prob: np.ndarray, files: TextureFiles, voxel_m: float | None = None
 ) -> dict[str, Path]:
-    """Write `{prefix}.png` (RGBA, unobserved transparent), `{prefix}_over_map.png` (texture
-    over the occupancy map) and the coloured floor cloud (`floor.ply` for the default prefix,
-    else `floor_{suffix}.ply`; Open3D, voxel-downsampled to `voxel_m`, default the grid
-    resolution). Every file goes to a temporary name in `out_dir` and is renamed when
-    complete. Returns {kind: path}."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    """Write `files` (names from the run directory contract, `RunDirectory.texture_files`):
+    the texture (RGBA, unobserved transparent), the texture over the occupancy map and the
+    coloured floor cloud (Open3D, voxel-downsampled to `voxel_m`, default the grid
+    resolution). Every file goes to a temporary name beside it and is renamed when complete.
+    Returns {kind: path}."""
+    files.texture.parent.mkdir(parents=True, exist_ok=True)
     written: dict[str, Path] = {}
-    p = out_dir / f"{prefix}.png"
+    p = files.texture
     _write_png(p, texture_image(result))
     written["texture"] = p
-    p = out_dir / f"{prefix}_over_map.png"
+    p = files.over_map
     _write_png(p, texture_over_map_image(result, occupancy_prob))
     written["over_map"] = p
 
     import open3d as o3d
 
-    suffix = prefix[len("texture") :].lstrip("_") if prefix.startswith("texture") else prefix
-    p = out_dir / ("floor.ply" if not suffix else f"floor_{suffix}.ply")
+    p = files.cloud
     pcd = o3d.geometry.PointCloud()
     if result.floor_points.shape[0]:
         pcd.points = o3d.utility.Vector3dVector(np.asarray(result.floor_points, dtype=np.float64))
