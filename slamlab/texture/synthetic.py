@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamlab.frames import CameraIntrinsics, GridImage, KinectCalibration
+from slamlab.frames import KINECT_MAX_DEPTH_M, CameraIntrinsics, GridImage, KinectCalibration
 from slamlab.texture.backproject import undistort_normalized
 
 WALL_RGB = (200, 30, 200)  # a colour the floor textures below never use
@@ -57,7 +57,7 @@ def render_frame(
     T_world_ir: np.ndarray,
     texture: GridImage,
     wall_x_m: float | None = None,
-    max_depth_m: float = 4.5,
+    max_depth_m: float = KINECT_MAX_DEPTH_M,
     noise_m: float = 0.0,
     seed: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
