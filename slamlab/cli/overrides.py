@@ -2,9 +2,11 @@
 
     unknown key 'partciles' (did you mean 'particles'?)
     unknown choice 'systemtic' for resampler (did you mean 'systematic'?); choices: multinomial, residual, stratified, systematic
+    config 'particles': Value 'abc' of type 'str' could not be converted to Integer
 
 Hydra would answer the first with the advice to write `+partciles=50` (which then silently
-runs with the default), and the second with its config search path. Only mistakes this
+runs with the default), the second with its config search path, and the third (a value of the
+wrong type for its schema, `slamlab.config`) with a stack of merge messages. Only mistakes this
 module is sure of are reported; anything else is left to Hydra's own messages.
 """
 
@@ -67,7 +69,7 @@ def check_overrides(argv: list[str]) -> str | None:
     except HydraException:
         return None  # a syntax error: Hydra's message shows where
     groups = config_groups()
-    keys, group_choices = [], []
+    keys, group_choices, values_set = [], [], []
     for o in overrides:
         name = o.key_or_group
         if name.startswith("hydra") or o.is_delete() or o.package is not None:
@@ -84,6 +86,8 @@ def check_overrides(argv: list[str]) -> str | None:
                 group_choices.append(f"{o.input_line.split('=', 1)[0]}={values[0]}")
         else:
             keys.append(name)
+            if not o.is_delete():
+                values_set.append((name, o.input_line.split("=", 1)[0], _values(o)))
     if not keys:
         return None
     from hydra import compose, initialize_config_module
@@ -98,4 +102,29 @@ def check_overrides(argv: list[str]) -> str | None:
     for key in keys:
         if key not in known:
             return f"unknown key '{key}'{_suggest(key, known)}"
+    return _type_mistake(group_choices, values_set)
+
+
+def _type_mistake(group_choices: list[str], values_set: list[tuple[str, str, list[str]]]) -> str | None:
+    """A value the schema cannot take (`particles=abc`), as `config 'KEY': why`; every value of
+    a sweep is tried (up to a few dozen)."""
+    from hydra import compose, initialize_config_module
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    tries = [f"{lhs}={v}" for _, lhs, values in values_set for v in values][:40]
+    try:
+        with initialize_config_module(config_module="slamlab.conf", version_base="1.3"):
+            for one in tries:
+                try:
+                    compose(config_name="config", overrides=[*group_choices, one])
+                except HydraException as exc:
+                    e: BaseException | None = exc
+                    while e is not None and not isinstance(e, OmegaConfBaseException):
+                        e = e.__cause__ or e.__context__
+                    if e is not None:
+                        key = getattr(e, "full_key", None) or one.split("=", 1)[0].lstrip("+")
+                        return f"config '{key}': {str(e).splitlines()[0]}"
+    except HydraException:
+        return None
     return None

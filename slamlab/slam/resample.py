@@ -13,18 +13,16 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from slamlab.config.slam import ResamplerConfig
 from slamlab.geometry import FloatArray
-from slamlab.slam._keys import require_fraction
 from slamlab.slam.weighting import effective_sample_size
-
-GROUP = "resampler"
 
 
 class Resampler(ABC):
     """Interface: `indices(weights (N,), rng) -> int64 (N,)`, plus the N_eff trigger."""
 
-    def __init__(self, threshold: float = 0.5) -> None:
-        self.threshold = require_fraction(GROUP, "threshold", threshold)
+    def __init__(self, threshold: float = ResamplerConfig.threshold) -> None:  # checked by ResamplerConfig
+        self.threshold = float(threshold)
 
     def should_resample(self, weights: FloatArray) -> bool:
         """True when N_eff < threshold * N."""
