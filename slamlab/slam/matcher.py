@@ -11,7 +11,8 @@ With `move_to_best` the particle moves to its best offset; the score there is it
 correlation for the weighting either way.
 
 Adding a matcher: subclass `Matcher`, implement `match` (shared map, filter=course) and
-`match_each` (a map per particle, filter=rbpf), add `conf/matcher/NAME.yaml`.
+`match_each` (a map per particle, filter=rbpf), add its schema (`slamlab.config.slam`, listed in
+`slamlab.config.SCHEMAS`) and `conf/matcher/NAME.yaml`.
 """
 
 from __future__ import annotations

@@ -5,7 +5,9 @@ The increment is `u = o_t (-) o_t+1` written as a pose in the robot frame at t
 four-parameter model, the noisy rot1/trans/rot2 decomposition of u). When the robot stands
 still (u == 0) neither model adds noise, so a parked robot does not diffuse.
 
-Adding a model: subclass `MotionModel`, implement `sample`, add `conf/motion/NAME.yaml`.
+Adding a model: subclass `MotionModel`, implement `sample`, add its schema
+(a dataclass in `slamlab.config.slam`, listed in `slamlab.config.SCHEMAS`) and
+`conf/motion/NAME.yaml` extending it.
 """
 
 from __future__ import annotations

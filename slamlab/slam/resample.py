@@ -4,7 +4,8 @@ All four schemes are unbiased (each particle's expected number of copies is N * 
 differ in variance: multinomial > stratified >= systematic, residual in between. The engine
 resamples only when N_eff = 1 / sum(w^2) < threshold * N (`threshold` in (0, 1]).
 
-Adding a scheme: subclass `Resampler`, implement `indices`, add `conf/resampler/NAME.yaml`.
+Adding a scheme: subclass `Resampler`, implement `indices`, add its schema
+(`slamlab.config.slam`, listed in `slamlab.config.SCHEMAS`) and `conf/resampler/NAME.yaml`.
 """
 
 from __future__ import annotations

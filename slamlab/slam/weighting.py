@@ -20,7 +20,8 @@ the correlation (the course's "easy, slightly incorrect" w *= corr); `linear_exp
 `logsumexp` say it is proportional to exp(correlation) ("easy, correct"), and only
 `logsumexp` computes that safely.
 
-Adding a scheme: subclass `Weighting`, implement `update`, add `conf/weighting/NAME.yaml`.
+Adding a scheme: subclass `Weighting`, implement `update`, add its schema
+(`slamlab.config.slam`, listed in `slamlab.config.SCHEMAS`) and `conf/weighting/NAME.yaml`.
 """
 
 from __future__ import annotations
