@@ -6,11 +6,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Optional
 
-from slamlab.config.checks import require_bool, require_choice, require_int, require_nonnegative
+from slamlab.config.checks import require_bool, require_choice, require_int
 from slamlab.errors import ConfigError
 
 MODES = ("slam", "odometry", "predict")
-PROGRESS = ("auto", "bar", "log", "off")
 # record.particles: auto keeps the history where the report can draw it (every path of a
 # prediction-only run; the weights of a filter with this few particles)
 RECORD_AUTO_MAX_PARTICLES = 10

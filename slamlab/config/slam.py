@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, Optional
 
-from slamlab.config.checks import require_choice, require_fraction, require_int, require_nonnegative, require_positive
+from slamlab.config.checks import require_fraction, require_int, require_nonnegative, require_positive
 from slamlab.errors import ConfigError
 
 
@@ -279,5 +279,4 @@ __all__ = [
     "LinearWeightingConfig", "LinearExpWeightingConfig", "LogSumExpWeightingConfig",
     "ResamplerConfig", "SystematicResamplerConfig", "StratifiedResamplerConfig", "MultinomialResamplerConfig", "ResidualResamplerConfig",
     "GridMatcherConfig", "LikelihoodMatcherConfig", "MapConfig", "CourseFilterConfig", "RbpfFilterConfig",
-    "require_choice",
 ]

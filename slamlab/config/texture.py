@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import ClassVar, List, Optional
 
-from slamlab.config.checks import require_bool, require_choice, require_int, require_nonnegative, require_positive
+from slamlab.config.checks import require_bool, require_int, require_nonnegative, require_positive
 from slamlab.errors import ConfigError
 from slamlab.frames import KINECT_MAX_DEPTH_M, KINECT_MIN_DEPTH_M
 
@@ -128,4 +128,4 @@ class TextureConfig:
         self.evaluate_detectors = [str(n) for n in self.evaluate_detectors or []]
 
 
-__all__ = ["ThresholdGroundConfig", "PlaneGroundConfig", "ImagePlaneGroundConfig", "TextureConfig", "require_choice"]
+__all__ = ["ThresholdGroundConfig", "PlaneGroundConfig", "ImagePlaneGroundConfig", "TextureConfig"]

@@ -43,7 +43,7 @@ import pandas as pd
 from slamlab.errors import ConfigError
 from slamlab.frames import Sequence
 from slamlab.geometry import FloatArray, se2_between, se2_compose
-from slamlab.slam.filters import FilterKind, SharedMapFilter
+from slamlab.slam.filters import FilterKind
 from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import Matcher
 from slamlab.slam.motion import MotionModel
