@@ -23,7 +23,6 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from slamlab import artifacts
-from slamlab.assemble import RunSetup, assemble
 from slamlab.datasets.stamps import repeated_stamps
 from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.frames import Relations, Sequence
@@ -35,6 +34,8 @@ from slamlab.slam.result import SlamResult
 
 if TYPE_CHECKING:
     import pandas as pd
+
+    from slamlab.assemble import RunSetup
 
 log = logging.getLogger("slamlab")
 
@@ -279,6 +280,7 @@ def run_pipeline(
     SlamlabError; a failed run still writes metrics.json with status "failed" and the error.
     """
     from slamlab.eval.consistency import consistency_metrics
+    from slamlab.assemble import assemble  # builds the components: imports the numba kernels
     from slamlab.slam.engine import run_slam
 
     run_dir = Path(run_dir)
