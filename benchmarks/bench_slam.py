@@ -23,6 +23,7 @@ from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
 from slamlab.paths import data_dir
+from slamlab.assemble import build_components
 from slamlab.slam.engine import run_slam
 
 REPO = Path(__file__).resolve().parents[1]
@@ -50,7 +51,7 @@ def _warm() -> None:
 
     seq = load_carmen(d / "carmen" / "aces.clf.bz2")
     for m in ("likelihood", "grid"):
-        run_slam(seq, _compose(["+experiment=aces", f"matcher={m}", "steps.max_scans=300", "dataset.path=x"]))
+        run_slam(seq, build_components(_compose(["+experiment=aces", f"matcher={m}", "steps.max_scans=300", "dataset.path=x"])))
 
 
 def bench_carmen(name: str) -> dict | None:
@@ -65,7 +66,7 @@ def bench_carmen(name: str) -> dict | None:
     cfg = _compose([f"+experiment={name}", f"dataset.path={log}"])
     seq = instantiate(cfg.dataset)
     t0 = time.perf_counter()
-    res = run_slam(seq, cfg)
+    res = run_slam(seq, build_components(cfg))
     wall = time.perf_counter() - t0
     e = relation_errors(res.times, res.trajectory, seq.relations)
     ec = relation_errors(res.times, res.causal, seq.relations)
@@ -88,7 +89,7 @@ def bench_sim() -> dict | None:
     from slamlab.eval.trajectory import trajectory_errors
 
     t0 = time.perf_counter()
-    res = run_slam(seq, cfg)
+    res = run_slam(seq, build_components(cfg))
     wall = time.perf_counter() - t0
     acc = "no ground truth"
     if seq.ground_truth is not None:

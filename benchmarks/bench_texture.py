@@ -22,11 +22,12 @@ import tracemalloc
 from pathlib import Path
 
 import numpy as np
-from omegaconf import OmegaConf
 
 from slamlab.datasets.sim.calib import default_calibration
 from slamlab.frames import GridImage
 from slamlab.paths import data_dir
+from slamlab.config import SCHEMAS
+from slamlab.config.texture import TextureConfig
 from slamlab.texture.pipeline import run_texture
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -76,14 +77,13 @@ def main() -> None:
     grid = GridImage(np.zeros((300, 300), dtype=np.float32), 0.05, (-5.0, -7.5))
     times = np.arange(n * args.repeat, dtype=np.float64)
     tpl = np.tile(poses, (args.repeat, 1))
-    tcfg = OmegaConf.load(CONF / "texture" / "default.yaml")
-    tcfg.evaluate_detectors = []
+    tcfg = TextureConfig(evaluate_detectors=[])
 
     print(f"Kinect {calib.ir.width}x{calib.ir.height} depth, {calib.rgb.width}x{calib.rgb.height} colour; calibration: {calib_note}")
     print(f"{n} frames rendered in {render_s:.1f} s, each streamed {args.repeat}x per detector\n")
     print(f"{'detector':<12} {'stride':>6} {'points/frame':>12} {'median ms':>10} {'p90 ms':>8} {'detector ms':>12} {'floor pts/frame':>15}")
     for name in DETECTORS:
-        ground = OmegaConf.load(CONF / "ground" / f"{name}.yaml")
+        ground = SCHEMAS["ground"][name]()
         for stride in (1, 2):
             tcfg.stride = stride
             s = dataclasses.replace(seq, rgbd=_stream(seq, args.repeat), rgbd_count=n * args.repeat)
@@ -98,7 +98,7 @@ def main() -> None:
 
     # Memory: peak of traced allocations during a run, short vs 4x longer stream.
     tcfg.stride = 1
-    ground = OmegaConf.load(CONF / "ground" / "threshold.yaml")
+    ground = SCHEMAS["ground"]["threshold"]()
     peaks = []
     for copies in (1, 4):
         s = dataclasses.replace(seq, rgbd=_stream(seq, copies), rgbd_count=n * copies)

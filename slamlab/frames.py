@@ -76,6 +76,12 @@ class CameraIntrinsics:
     height: int
 
 
+# The Kinect v2's usable depth range (m): the simulator writes 0 outside it and the texture
+# stage ignores depth outside it by default (`texture.min_depth_m` / `max_depth_m`).
+KINECT_MIN_DEPTH_M = 0.4
+KINECT_MAX_DEPTH_M = 4.5
+
+
 @dataclass(frozen=True, slots=True)
 class KinectCalibration:
     """The Kinect v2 pair: `P_rgb = R @ P_ir + T_mm / 1000` (metres)."""

@@ -7,6 +7,7 @@ calls `run_pipeline`, then writes the run's report (the report layer sits above 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -37,6 +38,8 @@ from slamlab.slam.result import SlamResult
 
 if TYPE_CHECKING:
     import pandas as pd
+
+    from slamlab.assemble import RunSetup
 
 log = logging.getLogger("slamlab")
 
@@ -221,15 +224,7 @@ def relation_table(seq: Sequence, result: SlamResult) -> pd.DataFrame | None:
     return pd.DataFrame(cols)
 
 
-def record_first_scan(cfg: DictConfig) -> bool:
-    """`record.first_scan`, checked (a bool)."""
-    v = OmegaConf.select(cfg, "record.first_scan", default=False)
-    if not isinstance(v, bool):
-        raise ConfigError("record.first_scan", f"must be true or false, got {v!r}")
-    return v
-
-
-def write_recordings(run_dir: Path, result: SlamResult, cfg: DictConfig) -> None:
+def write_recordings(run_dir: Path, result: SlamResult, first_scan: bool) -> None:
     """particles.npz, replay.npz and first_scan.npz, when `record.*` asks for them (docs/RUN_DIRECTORY.md)."""
     run = RunDirectory(run_dir)
     h = result.particle_history
@@ -241,12 +236,12 @@ def write_recordings(run_dir: Path, result: SlamResult, cfg: DictConfig) -> None
         step_scans = np.asarray(result.extras["step_scans"])
         run.write_replay(scan_index=step_scans[result.replay["step"]],
                          t=result.times[step_scans[result.replay["step"]]], **result.replay)
-    if record_first_scan(cfg) and result.first_scan_xy is not None:
+    if first_scan and result.first_scan_xy is not None:
         run.write_first_scan(FirstScan(points_xy=result.first_scan_xy,
                                        sensor_xy=np.asarray(result.first_scan_origin), pose=result.trajectory[int(result.extras["step_scans"][0])]))
 
 
-def run_texture_stage(seq: Sequence, result: SlamResult, cfg: DictConfig, run_dir: Path) -> dict:
+def run_texture_stage(seq: Sequence, result: SlamResult, setup: RunSetup, run_dir: Path) -> dict:
     """Texture the floor with the SLAM and the odometry trajectories; write its outputs.
 
     Any failure here is reported in metrics and never loses the SLAM results.
@@ -258,7 +253,7 @@ def run_texture_stage(seq: Sequence, result: SlamResult, cfg: DictConfig, run_di
     run = RunDirectory(run_dir)
     occ = artifacts.occupancy_probability(result.log_odds.data)
     out: dict = {}
-    slam_tex = run_texture(seq, result.times, result.trajectory, result.log_odds, cfg.ground, cfg.texture,
+    slam_tex = run_texture(seq, result.times, result.trajectory, result.log_odds, setup.ground, setup.texture,
                            sample_frames=SAMPLE_FRAMES)
     save_texture_outputs(slam_tex, occ, run.texture_files(TrajectoryKind.SLAM))
     if slam_tex.samples:
@@ -266,8 +261,8 @@ def run_texture_stage(seq: Sequence, result: SlamResult, cfg: DictConfig, run_di
     if seq.ground_truth is not None and seq.ground_truth.floor_texture is not None:
         save_truth_texture(slam_tex, seq.ground_truth.floor_texture, run / RunFile.TEXTURE_TRUTH)
     # detection scores do not depend on the trajectory: score the detectors once, with SLAM
-    odo_cfg = OmegaConf.merge(cfg.texture, {"evaluate_detectors": []})
-    odo_tex = run_texture(seq, result.times, result.odometry, result.log_odds, cfg.ground, odo_cfg)
+    odo_texture = dataclasses.replace(setup.texture, evaluate_detectors=[])
+    odo_tex = run_texture(seq, result.times, result.odometry, result.log_odds, setup.ground, odo_texture)
     save_texture_outputs(odo_tex, occ, run.texture_files(TrajectoryKind.ODOMETRY))
     if seq.ground_truth is not None:
         out = texture_metrics(slam_tex, seq.ground_truth)
@@ -289,7 +284,8 @@ def run_pipeline(
     SlamlabError; a failed run still writes metrics.json with status "failed" and the error.
     """
     from slamlab.eval.consistency import consistency_metrics
-    from slamlab.slam.engine import run_slam, validate_config
+    from slamlab.assemble import assemble  # builds the components: imports the numba kernels
+    from slamlab.slam.engine import run_slam
 
     run_dir = Path(run_dir)
     run = RunDirectory(run_dir)
@@ -302,8 +298,7 @@ def run_pipeline(
     metrics: RunMetrics | None = None
     try:
         require_values(cfg)
-        components = validate_config(cfg)
-        record_first_scan(cfg)
+        setup = assemble(cfg)  # every component built and checked once, before any work
         seq = load_sequence(cfg.dataset)
         log.info("dataset %s: %d scans, %s RGB-D frames", seq.name, len(seq), seq.rgbd_count if seq.rgbd else "no")
         reporter = make_progress(progress, label="SLAM") if not callable(progress) else progress
@@ -311,7 +306,7 @@ def run_pipeline(
         cpu_slam0 = time.process_time()
         try:
             with stopper:  # Ctrl-C here stops after the current step, keeping the run so far
-                result = run_slam(seq, cfg, progress=stopper)
+                result = run_slam(seq, setup.components, progress=stopper)
         finally:
             if hasattr(reporter, "close"):
                 reporter.close()
@@ -320,7 +315,7 @@ def run_pipeline(
         metrics = filter_metrics(seq, result, cfg)
         metrics.cpu_time_s = cpu_slam
         metrics = replace(metrics, **accuracy_metrics(seq, result))
-        consistency, consistency_series = consistency_metrics(seq, result.trajectory, result.log_odds, components.map)
+        consistency, consistency_series = consistency_metrics(seq, result.trajectory, result.log_odds, setup.components.map)
         metrics.consistency = consistency
 
         # SLAM results first: whatever happens to texture afterwards, these are kept.
@@ -335,16 +330,16 @@ def run_pipeline(
         relations = relation_table(seq, result)
         if relations is not None:
             artifacts.write_table(run / RunFile.RELATIONS, relations)
-        write_recordings(run_dir, result, cfg)
+        write_recordings(run_dir, result, setup.run.record.first_scan)
         run.write_manifest(build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
         if stopper.requested:
             raise KeyboardInterrupt
 
         from slamlab.texture.pipeline import texture_enabled
 
-        if texture_enabled(seq, cfg.texture):
+        if texture_enabled(seq, setup.texture):
             try:
-                metrics.texture = run_texture_stage(seq, result, cfg, run_dir)
+                metrics.texture = run_texture_stage(seq, result, setup, run_dir)
             except Exception as exc:  # keep SLAM results; say what went wrong
                 err = user_error(exc) or exc
                 log.error("texture mapping failed, SLAM results kept: %s", err)

@@ -6,19 +6,20 @@ import pytest
 
 from slamlab.eval.consistency import consistency_metrics
 from slamlab.frames import Sequence
-from slamlab.slam.engine import run_slam, validate_config
+from slamlab.assemble import build_components
+from slamlab.slam.engine import run_slam
 from test_slam_engine import _cfg, _room_sequence
 
 
 def _score(seq: Sequence, poses: np.ndarray, log_odds, *keys: str) -> dict:
-    summary, series = consistency_metrics(seq, poses, log_odds, validate_config(_cfg(*keys)).map)
+    summary, series = consistency_metrics(seq, poses, log_odds, build_components(_cfg(*keys)).map)
     assert len(series["hit_fraction"]) == summary["scans_scored"]
     return summary
 
 
 def test_scans_replayed_where_the_map_was_built_land_on_its_walls():
     seq = _room_sequence()
-    res = run_slam(seq, _cfg("mode=odometry"))
+    res = run_slam(seq, build_components(_cfg("mode=odometry")))
     good = _score(seq, res.trajectory, res.log_odds, "mode=odometry")
     assert good["scans_scored"] == len(seq)
     # the map was made from exactly these scans at exactly these poses
@@ -43,8 +44,8 @@ def test_scan_matching_scores_clearly_above_dead_reckoning_on_intel(shared_data)
                    max_range_m=full.max_range_m, min_range_m=full.min_range_m)
     keys = ("dataset=carmen", "dataset.path=unused", "particles=10", "filter=course", "matcher=likelihood",
             "steps.min_distance_m=0.2", "steps.min_angle_rad=0.2")
-    slam = run_slam(seq, _cfg(*keys))
-    dead = run_slam(seq, _cfg(*keys, "mode=odometry"))
+    slam = run_slam(seq, build_components(_cfg(*keys)))
+    dead = run_slam(seq, build_components(_cfg(*keys, "mode=odometry")))
     s = _score(seq, slam.trajectory, slam.log_odds, *keys)
     d = _score(seq, dead.trajectory, dead.log_odds, *keys, "mode=odometry")
     assert s["hit_fraction_mean"] > 0.9

@@ -96,7 +96,7 @@ def test_same_seed_same_bytes_other_seed_differs(sim_cache, tmp_path):
         ("particles=0", "particles"),
         ("resampler.threshold=1.5", "resampler.threshold"),
         ("dataset=carmen", "dataset.path"),  # a required value left out
-        ("dataset.seed=abc", "dataset.seed"),  # a dataset knob of the wrong type
+        ("dataset.n_clutter=-1", "dataset.n_clutter"),  # a dataset knob out of range
     ],
 )
 def test_impossible_values_name_the_key(override, key, tmp_path):
@@ -108,6 +108,21 @@ def test_impossible_values_name_the_key(override, key, tmp_path):
     m = json.loads((tmp_path / "r" / "metrics.json").read_text())
     assert m["status"] == "failed" and key in m["error"]
     assert visible_files(tmp_path / "r") == ["metrics.json"]
+
+
+def test_a_value_of_the_wrong_type_is_refused_when_composing():
+    """Types come from the schemas (`slamlab.config`): Hydra refuses `dataset.seed=abc` while
+    composing, and the CLI's check says so in one line naming the key."""
+    from hydra.errors import ConfigCompositionException
+
+    from slamlab.cli.overrides import check_overrides
+
+    with pytest.raises(ConfigCompositionException, match="dataset.seed"):
+        make_cfg(["dataset.seed=abc"])
+    assert check_overrides(["dataset.seed=abc"]) == (
+        "config 'dataset.seed': Value 'abc' of type 'str' could not be converted to Integer")
+    assert check_overrides(["-m", "particles=10,x"]).startswith("config 'particles': ")
+    assert check_overrides(["particles=10", "dataset.seed=3"]) is None
 
 
 def test_a_folder_claimed_by_a_running_run_is_refused(tmp_path):

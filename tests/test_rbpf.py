@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from slamlab.frames import Sequence
+from slamlab.assemble import build_components
 from slamlab.slam.engine import run_slam
 from test_slam_engine import _cfg, _room_sequence
 
@@ -44,7 +45,7 @@ def test_course_filter_reproduces_the_trajectory_from_before_the_filter_group(sh
     seq = Sequence(name="intel-slice", scans=full.scans[:1200], body_height_m=None, sources=full.sources,
                    max_range_m=full.max_range_m, min_range_m=full.min_range_m)
     extra = ["matcher=likelihood"] if matcher == "likelihood" else ["matcher=grid", "particles=20"]
-    res = run_slam(seq, _cfg(*COURSE_KEYS, "filter=course", *extra))
+    res = run_slam(seq, build_components(_cfg(*COURSE_KEYS, "filter=course", *extra)))
     assert (_sha(res.trajectory), _sha(res.log_odds.data)) == COURSE_BEFORE[matcher]
     assert res.extras["filter"] == "course"
 
@@ -56,13 +57,13 @@ def test_course_filter_on_the_room_is_unchanged_and_is_what_old_configs_run(matc
 
     seq = _room_sequence()
     keys = ("particles=20", "seed=7", f"matcher={matcher}")
-    res = run_slam(seq, _cfg(*keys, "filter=course"))
+    res = run_slam(seq, build_components(_cfg(*keys, "filter=course")))
     assert (_sha(res.trajectory), _sha(res.log_odds.data)) == COURSE_ROOM_BEFORE[matcher]
     # a config saved before the filter group existed has no `filter` key: it ran the course filter
     old = _cfg(*keys)
     OmegaConf.set_struct(old, False)
     del old["filter"]
-    res_old = run_slam(seq, old)
+    res_old = run_slam(seq, build_components(old))
     assert res_old.extras["filter"] == "course"
     assert res_old.trajectory.tobytes() == res.trajectory.tobytes()
 
@@ -77,22 +78,22 @@ def test_rbpf_same_seed_gives_identical_bytes_on_one_or_two_threads(matcher):
     before = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
-        a = run_slam(seq, cfg)
+        a = run_slam(seq, build_components(cfg))
         numba.set_num_threads(2)
-        b = run_slam(seq, cfg)
+        b = run_slam(seq, build_components(cfg))
     finally:
         numba.set_num_threads(before)
     assert a.trajectory.tobytes() == b.trajectory.tobytes()
     assert a.causal.tobytes() == b.causal.tobytes()
     assert a.log_odds.data.tobytes() == b.log_odds.data.tobytes()
-    c = run_slam(seq, _cfg("filter=rbpf", "particles=12", "seed=4", f"matcher={matcher}"))
+    c = run_slam(seq, build_components(_cfg("filter=rbpf", "particles=12", "seed=4", f"matcher={matcher}")))
     assert c.trajectory.tobytes() != a.trajectory.tobytes()
 
 
 @pytest.mark.slow
 def test_rbpf_beats_odometry_and_reports_its_maps():
     seq = _room_sequence()
-    res = run_slam(seq, _cfg("filter=rbpf", "particles=20", "matcher=likelihood"))
+    res = run_slam(seq, build_components(_cfg("filter=rbpf", "particles=20", "matcher=likelihood")))
     # the odometry over-counts distance by 5 % (as in test_slam_engine's room test)
     true_len = (len(seq) - 6) * 0.03
     end_odo = res.odometry[-1] - res.odometry[0]
@@ -102,7 +103,7 @@ def test_rbpf_beats_odometry_and_reports_its_maps():
     assert ex["filter"] == "rbpf"
     # 20 particles that diverge hold more than one map's worth of tiles and at most 20 maps'
     # (in this 6 x 4 m room every scan touches every tile, so each particle owns a full copy)
-    one = run_slam(seq, _cfg("filter=rbpf", "particles=1", "matcher=likelihood")).extras["map_tiles"]
+    one = run_slam(seq, build_components(_cfg("filter=rbpf", "particles=1", "matcher=likelihood"))).extras["map_tiles"]
     assert one < ex["map_tiles"] <= 20 * one
     assert ex["map_tiles"] <= ex["map_tiles_peak"]
     assert 0 < ex["map_mb"] <= ex["map_peak_mb"]
@@ -113,15 +114,14 @@ def test_rbpf_beats_odometry_and_reports_its_maps():
 def test_rbpf_final_map_is_the_best_particles_own_map():
     """The map handed back is exactly the one built along the returned (smoothed) path: a
     single map replaying the scans at the processed steps from those poses equals it."""
-    from slamlab.slam.engine import validate_config
     from slamlab.slam.scan import scan_to_points
     from slamlab.slam.tiles import TiledMaps
 
     seq = _room_sequence()
     cfg = _cfg("filter=rbpf", "particles=10", "matcher=likelihood", "seed=1")
-    res = run_slam(seq, cfg)
+    res = run_slam(seq, build_components(cfg))
     assert res.resample_count > 0  # the best particle's map passed through resampling
-    c = validate_config(cfg)
+    c = build_components(cfg)
     steps = res.extras["step_scans"]
     replay = TiledMaps(c.map, 1, tuple(res.trajectory[steps[0], :2]), c.matcher.field_sigma_m, c.matcher.field_radius_m)
     for si in steps:
@@ -143,10 +143,12 @@ def test_rbpf_step_scale_narrows_the_prior_for_short_steps_only():
     assert f.step_scale(np.array([0.03, 0.04, 0.05])) == pytest.approx(0.5)
     assert f.step_scale(np.array([5.0, 0.0, 0.0])) == 1.0  # long steps keep the prior
     assert SharedMapFilter().step_scale(np.array([0.1, 0.0, 0.0])) == 1.0
+    from slamlab.config.slam import RbpfFilterConfig  # the schema checks, the filter trusts it
+
     with pytest.raises(ConfigError, match="filter.step_ref_rad"):
-        RaoBlackwellFilter(step_ref_m=0.2)
+        RbpfFilterConfig(step_ref_m=0.2)
     with pytest.raises(ConfigError, match="filter.step_ref_m"):
-        RaoBlackwellFilter(step_ref_m=-1.0, step_ref_rad=0.2)
+        RbpfFilterConfig(step_ref_m=-1.0, step_ref_rad=0.2)
 
 
 @pytest.mark.slow
@@ -154,7 +156,7 @@ def test_rbpf_short_steps_keep_the_robot_closer_to_odometry():
     """The room's odometry is 5 % long: a narrower prior (short steps against a long
     reference) lets the matcher correct less per step, so the path stays nearer odometry."""
     seq = _room_sequence()
-    free = run_slam(seq, _cfg("filter=rbpf", "particles=10", "matcher=likelihood"))
-    tight = run_slam(seq, _cfg("filter=rbpf", "particles=10", "matcher=likelihood", "filter.step_ref_m=3.0", "filter.step_ref_rad=30.0"))
+    free = run_slam(seq, build_components(_cfg("filter=rbpf", "particles=10", "matcher=likelihood")))
+    tight = run_slam(seq, build_components(_cfg("filter=rbpf", "particles=10", "matcher=likelihood", "filter.step_ref_m=3.0", "filter.step_ref_rad=30.0")))
     dev = lambda r: np.abs(r.trajectory[:, :2] - r.odometry[:, :2]).max()  # noqa: E731
     assert dev(tight) < dev(free)

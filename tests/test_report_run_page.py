@@ -26,6 +26,7 @@ from slamlab.artifacts import read_map
 from slamlab.frames import GridImage
 from slamlab.report import write_run_report
 from slamlab.report.replay_section import frame_image
+from slamlab.assemble import build_components
 from slamlab.slam.engine import run_slam
 from slamlab.slam.replay import SNAPSHOTS, reduce_map, snapshot_steps
 from test_slam_engine import _cfg, _room_sequence
@@ -77,8 +78,8 @@ def test_snapshot_steps_spread_over_the_run_and_end_at_the_last_step() -> None:
 
 def test_recording_the_replay_does_not_change_the_filter() -> None:
     seq = _room_sequence()
-    on = run_slam(seq, _cfg("particles=20", "seed=7", "record.replay=true"))
-    off = run_slam(seq, _cfg("particles=20", "seed=7", "record.replay=false"))
+    on = run_slam(seq, build_components(_cfg("particles=20", "seed=7", "record.replay=true")))
+    off = run_slam(seq, build_components(_cfg("particles=20", "seed=7", "record.replay=false")))
     assert off.replay is None and on.replay is not None
     assert np.array_equal(on.trajectory, off.trajectory) and np.array_equal(on.log_odds.data, off.log_odds.data)
     # the last snapshot is the final map, reduced

@@ -5,6 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
+from slamlab.config.slam import CourseMotionConfig
 from slamlab.errors import ConfigError
 from slamlab.frames import ScanFrame
 from slamlab.geometry import rot_y, trans
@@ -235,7 +236,7 @@ def _box_map():
 
 def test_grid_matcher_finds_known_offset():
     g, scan = _box_map()
-    m = GridMatcher(xy_half_width_m=0.2, xy_step_m=0.05)
+    m = GridMatcher(xy_half_width_m=0.2, xy_step_m=0.05, beam_step=1)  # every point (the config's default is 4)
     start = np.array([[0.10, -0.15, 0.0], [0.0, 0.0, 0.0]])
     best, score = m.match(g, start, scan)
     np.testing.assert_allclose(best, 0.0, atol=1e-9)
@@ -244,7 +245,8 @@ def test_grid_matcher_finds_known_offset():
 
 def test_likelihood_matcher_recovers_pose_subcell():
     g, scan = _box_map()
-    m = LikelihoodFieldMatcher(xy_half_width_m=0.1, xy_step_m=0.05, yaw_half_width_rad=0.1, yaw_step_rad=0.025, refine_levels=5)
+    m = LikelihoodFieldMatcher(sigma_m=0.05, radius_m=0.2, xy_half_width_m=0.1, xy_step_m=0.05, yaw_half_width_rad=0.1,
+                               yaw_step_rad=0.025, refine_levels=5, prior_sigma_xy_m=0.0, prior_sigma_yaw_rad=0.0)
     start = np.array([[0.07, -0.06, 0.05]])
     best, _ = m.match(g, start, scan)
     np.testing.assert_allclose(best[0], 0.0, atol=0.015)
@@ -314,8 +316,8 @@ def test_course_motion_sqrt_growth_spreads_the_same_per_metre_whatever_the_step(
     assert _spread_after(sq, 0.1) == pytest.approx(want, rel=0.03)
     assert _spread_after(sq, 0.05) == pytest.approx(want, rel=0.03)
     assert _spread_after(lin, 0.1) == pytest.approx(want / np.sqrt(2), rel=0.03)
-    with pytest.raises(ConfigError, match="motion.growth"):
-        CourseMotion(growth="cubic")
+    with pytest.raises(ConfigError, match="motion.growth"):  # the schema checks, the model trusts it
+        CourseMotionConfig(growth="cubic")
 
 
 @pytest.mark.parametrize("yaw_half_width", [0.0, 0.02])

@@ -9,7 +9,8 @@ from hydra import compose, initialize_config_dir
 
 from slamlab.errors import ConfigError
 from slamlab.frames import ScanFrame, Sequence
-from slamlab.slam.engine import ancestral_path, run_slam, validate_config
+from slamlab.assemble import build_components
+from slamlab.slam.engine import ancestral_path, run_slam
 from slamlab.slam.matcher import GridMatcher
 from slamlab.slam.weighting import WeightUnderflowWarning
 
@@ -50,12 +51,12 @@ def _room_sequence(n: int = 60) -> Sequence:
 def test_same_seed_same_trajectory_bit_for_bit():
     seq = _room_sequence()
     cfg = _cfg("particles=20", "seed=7", "matcher=likelihood")
-    a = run_slam(seq, cfg)
-    b = run_slam(seq, cfg)
+    a = run_slam(seq, build_components(cfg))
+    b = run_slam(seq, build_components(cfg))
     assert a.trajectory.tobytes() == b.trajectory.tobytes()
     assert a.causal.tobytes() == b.causal.tobytes()
     assert a.log_odds.data.tobytes() == b.log_odds.data.tobytes()
-    c = run_slam(seq, _cfg("particles=20", "seed=8", "matcher=likelihood"))
+    c = run_slam(seq, build_components(_cfg("particles=20", "seed=8", "matcher=likelihood")))
     assert c.trajectory.tobytes() != a.trajectory.tobytes()
 
 
@@ -76,7 +77,7 @@ def test_ancestral_path_follows_parents_not_indices():
 def test_smoothed_path_ends_at_the_final_best_particle():
     # the last step resamples (threshold 1.0 always does), which must not change whose path
     # is reported: the final best particle's, so its last processed pose is the causal one.
-    res = run_slam(_room_sequence(), _cfg("particles=20", "matcher=likelihood", "resampler.threshold=1.0"))
+    res = run_slam(_room_sequence(), build_components(_cfg("particles=20", "matcher=likelihood", "resampler.threshold=1.0")))
     last = int(res.extras["step_scans"][-1])
     assert bool(res.steps["resampled"].iloc[-1])
     np.testing.assert_array_equal(res.trajectory[last], res.causal[last])
@@ -85,7 +86,7 @@ def test_smoothed_path_ends_at_the_final_best_particle():
 @pytest.mark.parametrize("matcher", ["grid", "likelihood"])
 def test_slam_beats_odometry_on_a_known_room(matcher):
     seq = _room_sequence()
-    res = run_slam(seq, _cfg("particles=20", f"matcher={matcher}"))
+    res = run_slam(seq, build_components(_cfg("particles=20", f"matcher={matcher}")))
     assert res.trajectory.shape == (len(seq), 3) and len(res.steps) == res.extras["processed_steps"]
     assert list(res.steps.columns) == ["step", "scan_index", "t", "neff", "resampled", "best_weight", "step_time_s"]
     # the odometry over-counts distance by 5 % and drifts in yaw; the filter should not
@@ -97,13 +98,13 @@ def test_slam_beats_odometry_on_a_known_room(matcher):
 
 def test_dead_reckoning_mode_follows_odometry():
     seq = _room_sequence(30)
-    res = run_slam(seq, _cfg("mode=odometry"))
+    res = run_slam(seq, build_components(_cfg("mode=odometry")))
     np.testing.assert_allclose(res.trajectory, seq.odometry, atol=1e-9)
     assert res.particles == 1 and res.resample_count == 0
 
 
 def test_linear_weighting_runs_without_underflow_on_a_good_map():
-    res = run_slam(_room_sequence(30), _cfg("particles=10", "weighting=linear"))
+    res = run_slam(_room_sequence(30), build_components(_cfg("particles=10", "weighting=linear")))
     assert np.all(np.isfinite(res.trajectory))
     assert res.extras["weighting_underflows"] == 0
 
@@ -119,7 +120,7 @@ def test_linear_weighting_underflow_is_counted_and_survived(monkeypatch):
 
     monkeypatch.setattr(GridMatcher, "match", zero_scores)
     with pytest.warns(WeightUnderflowWarning, match="underflowed"):
-        res = run_slam(_room_sequence(30), _cfg("particles=10", "weighting=linear", "matcher=grid"))
+        res = run_slam(_room_sequence(30), build_components(_cfg("particles=10", "weighting=linear", "matcher=grid")))
     assert np.all(np.isfinite(res.trajectory))
     assert res.extras["weighting_underflows"] == res.extras["processed_steps"] - 1  # every update after the first
     np.testing.assert_allclose(res.steps["best_weight"].iloc[1:], 0.1)  # uniform over 10 particles
@@ -143,7 +144,7 @@ def test_linear_weighting_underflow_is_counted_and_survived(monkeypatch):
 )
 def test_bad_config_names_the_key(override, key):
     with pytest.raises(ConfigError) as e:
-        validate_config(_cfg(override))
+        build_components(_cfg(override))
     assert e.value.key == key and key in str(e.value)
 
 
@@ -170,7 +171,7 @@ def test_intel_slice_beats_odometry(shared_data):
     rel = Relations(t1=rel.t1[inside], t2=rel.t2[inside], rel=rel.rel[inside])
     with initialize_config_dir(config_dir=str(CONF), version_base=None):
         cfg = compose(config_name="config", overrides=["+experiment=intel", "dataset.path=unused"])
-    res = run_slam(seq, cfg)
+    res = run_slam(seq, build_components(cfg))
     e = relation_errors(res.times, res.trajectory, rel)
     o = relation_errors(res.times, res.odometry, rel)
     assert e["trans_abs_mean_m"] < 0.08

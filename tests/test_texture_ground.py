@@ -13,9 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from omegaconf import OmegaConf
 
-from slamlab.datasets.sim.calib import sim_calibration
+from slamlab.config import SCHEMAS
+from slamlab.config.texture import ThresholdGroundConfig
+from slamlab.datasets.sim.calib import default_calibration, sim_calibration
 from slamlab.datasets.sim.kinect import camera_rays, render_depth
 from slamlab.errors import ConfigError
 from slamlab.geometry import body_to_world
@@ -65,7 +66,7 @@ def frames():
 
 @pytest.mark.parametrize("name", DETECTORS)
 def test_detector_precision_recall_above_floor(name, frames):
-    det = build_detector(OmegaConf.load(CONF / f"{name}.yaml"))
+    det = build_detector(SCHEMAS["ground"][name]())
     assert det.name == name
     counts = DetectionCounts()
     for query, truth in frames:
@@ -141,20 +142,26 @@ def test_ransac_plane_finds_the_plane_among_outliers():
 
 
 def test_bad_detector_config_is_a_config_error():
-    with pytest.raises(ConfigError, match="ground"):
-        build_detector({"tolerance_m": 0.05})
-    with pytest.raises(ConfigError, match="ground"):
-        build_detector({"_target_": "slamlab.texture.ground.ThresholdGround", "tolerance_m": -1})
-    with pytest.raises(ConfigError, match="ground"):
-        build_detector({"_target_": "slamlab.texture.ground.ThresholdGround", "no_such_knob": 1})
+    from omegaconf import OmegaConf
+
+    from slamlab.assemble import typed_group
+
+    with pytest.raises(ConfigError, match="ground._target_"):
+        typed_group(OmegaConf.create({"ground": {"tolerance_m": 0.05}}), "ground")
+    with pytest.raises(ConfigError, match="ground.tolerance_m"):
+        ThresholdGroundConfig(tolerance_m=-1)
+    with pytest.raises(ConfigError, match="ground.no_such_knob"):
+        typed_group(OmegaConf.create({"ground": {"_target_": "slamlab.texture.ground.ThresholdGround", "no_such_knob": 1}}), "ground")
 
 
 def test_config_groups_compose():
     from hydra import compose, initialize_config_dir
 
+    from slamlab.assemble import typed_group
+
     with initialize_config_dir(config_dir=str(CONF.parent), version_base="1.3"):
         for name in DETECTORS:
             cfg = compose(config_name="config", overrides=[f"ground={name}"])
-            assert build_detector(cfg.ground).name == name
+            assert build_detector(typed_group(cfg, "ground")).name == name
         assert compose(config_name="config").texture.enabled is True
         assert compose(config_name="config", overrides=["texture=none"]).texture.enabled is False

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 import weakref
-from pathlib import Path
 
 import numpy as np
 import pytest
-from omegaconf import OmegaConf
-
+from slamlab.config.texture import TextureConfig, ThresholdGroundConfig
 from slamlab.datasets.sim.calib import default_calibration
 from slamlab.errors import ConfigError, DataError
 from slamlab.eval.texture import texture_metrics
@@ -24,16 +22,12 @@ from slamlab.texture.pipeline import (
 )
 from synthetic_rgbd import scaled_calibration, synthetic_sequence
 
-CONF = Path(__file__).resolve().parents[1] / "slamlab" / "conf"
-GROUND = OmegaConf.load(CONF / "ground" / "threshold.yaml")
+GROUND = ThresholdGroundConfig()
 
 
-def texture_cfg(**over) -> OmegaConf:
-    cfg = OmegaConf.load(CONF / "texture" / "default.yaml")
-    cfg.evaluate_detectors = []  # only the detection test needs the comparison (it is slow)
-    for k, v in over.items():
-        cfg[k] = v
-    return cfg
+def texture_cfg(**over) -> TextureConfig:
+    # only the detection test needs the detectors' comparison (it is slow)
+    return TextureConfig(**{"evaluate_detectors": [], **over})
 
 
 @pytest.fixture(scope="module")
@@ -162,7 +156,7 @@ def test_missing_inputs_are_clear_errors(seq, grid):
     with pytest.raises(ConfigError, match="texture.average"):
         run_texture(seq, _times(seq), poses, grid, GROUND, texture_cfg(average="median"))
     assert texture_enabled(seq, texture_cfg())
-    assert not texture_enabled(seq, OmegaConf.load(CONF / "texture" / "none.yaml"))
+    assert not texture_enabled(seq, texture_cfg(enabled=False))
     assert not texture_enabled(dataclasses.replace(seq, rgbd=None), texture_cfg())
 
 

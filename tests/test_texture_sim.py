@@ -4,12 +4,13 @@ odometry that does not depend on the filter)."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
-from omegaconf import OmegaConf
 
+from slamlab.config.texture import TextureConfig, ThresholdGroundConfig
 from slamlab.eval.texture import texture_metrics
 from slamlab.frames import GridImage
 from slamlab.texture.pipeline import run_texture
@@ -34,8 +35,8 @@ def test_sim_texture_truth_vs_odometry(sim):
     gt = sim.ground_truth
     assert sim.rgbd is not None and gt.floor_texture is not None and gt.ground_labels
     grid = GridImage(gt.occupancy.data.astype(np.float32), gt.occupancy.resolution_m, gt.occupancy.origin_xy)
-    tcfg = OmegaConf.load(CONF / "texture" / "default.yaml")
-    ground = OmegaConf.load(CONF / "ground" / "threshold.yaml")
+    tcfg = TextureConfig()
+    ground = ThresholdGroundConfig()
     true_res = run_texture(sim, sim.times, gt.poses, grid, ground, tcfg)
     m_true = texture_metrics(true_res, gt)
     assert true_res.frames_used == sim.rgbd_count and not true_res.skipped
@@ -47,6 +48,6 @@ def test_sim_texture_truth_vs_odometry(sim):
         assert d["frames"] == len(gt.ground_labels)
         assert d["precision"] >= p_min and d["recall"] >= r_min, (name, d)
 
-    tcfg.evaluate_detectors = []
+    tcfg = dataclasses.replace(tcfg, evaluate_detectors=[])
     odo = texture_metrics(run_texture(sim, sim.times, sim.odometry, grid, ground, tcfg), gt)
     assert odo["colour_error"] > m_true["colour_error"] + 3.0, (m_true["colour_error"], odo["colour_error"])

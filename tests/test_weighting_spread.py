@@ -6,6 +6,7 @@ import warnings
 import numpy as np
 import pytest
 
+from slamlab.config.slam import LinearExpWeightingConfig
 from slamlab.errors import ConfigError
 from slamlab.geometry import se2_compose
 from slamlab.slam.motion import CourseMotion, Odometry4Motion
@@ -61,7 +62,7 @@ def test_linear_exp_counts_underflow_separately():
 
 def test_linear_exp_temperature_is_checked():
     with pytest.raises(ConfigError, match="weighting.temperature"):
-        LinearExpWeighting(temperature=0.0)
+        LinearExpWeightingConfig(temperature=0.0)
 
 
 # ---------------------------------------------------------------- expected spread

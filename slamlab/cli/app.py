@@ -18,6 +18,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
+import slamlab.config.store  # noqa: F401  (the schemas the YAML files extend, whatever the config path: -cp, verify)
 from slamlab.cli.overrides import check_overrides
 from slamlab.errors import SlamlabError
 from slamlab.interrupt import EXIT_INTERRUPTED, RunInterrupted

@@ -2,9 +2,11 @@
 
     unknown key 'partciles' (did you mean 'particles'?)
     unknown choice 'systemtic' for resampler (did you mean 'systematic'?); choices: multinomial, residual, stratified, systematic
+    config 'particles': Value 'abc' of type 'str' could not be converted to Integer
 
 Hydra would answer the first with the advice to write `+partciles=50` (which then silently
-runs with the default), and the second with its config search path. Only mistakes this
+runs with the default), the second with its config search path, and the third (a value of the
+wrong type for its schema, `slamlab.config`) with a stack of merge messages. Only mistakes this
 module is sure of are reported; anything else is left to Hydra's own messages.
 """
 
@@ -67,7 +69,7 @@ def check_overrides(argv: list[str]) -> str | None:
     except HydraException:
         return None  # a syntax error: Hydra's message shows where
     groups = config_groups()
-    keys, group_choices = [], []
+    keys, group_choices, values_set = [], [], []
     for o in overrides:
         name = o.key_or_group
         if name.startswith("hydra") or o.is_delete() or o.package is not None:
@@ -84,6 +86,8 @@ def check_overrides(argv: list[str]) -> str | None:
                 group_choices.append(f"{o.input_line.split('=', 1)[0]}={values[0]}")
         else:
             keys.append(name)
+            if not o.is_delete():
+                values_set.append((name, o))
     if not keys:
         return None
     static = static_keys(group_choices)
@@ -101,6 +105,47 @@ def check_overrides(argv: list[str]) -> str | None:
     for key in keys:
         if key not in known:
             return f"unknown key '{key}'{_suggest(key, known)}"
+    return _type_mistake(group_choices, values_set)
+
+
+def _type_mistake(group_choices: list[str], values_set: list[tuple[str, object]]) -> str | None:
+    """A value its schema (`slamlab.config`) cannot take (`particles=abc`), as `config 'KEY':
+    why`. Checked against the schema dataclasses directly (no second compose): a group key is
+    wrong only if every schema of the group that has the key refuses the value; keys without a
+    schema (e.g. a CARMEN dataset's) are left to the run."""
+    import dataclasses
+
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    from slamlab.config import SCHEMAS
+    from slamlab.config.store import AppConfig
+
+    for name, override in values_set:
+        group, _, rest = name.partition(".")
+        if group in SCHEMAS and rest:
+            field = rest.split(".", 1)[0]
+            schemas = [sc for sc in SCHEMAS[group].values() if field in {f.name for f in dataclasses.fields(sc)}]
+            key = rest
+        else:
+            schemas, key = [AppConfig], name
+        if not schemas:
+            continue
+        try:
+            values = list(override.sweep_iterator()) if override.is_sweep_override() else [override.value()]
+        except Exception:  # noqa: BLE001 - e.g. a range over strings: Hydra will say
+            continue
+        for value in values:
+            why = None
+            for schema in schemas:
+                try:
+                    OmegaConf.update(OmegaConf.structured(schema), key, value, merge=True)
+                    why = None
+                    break
+                except OmegaConfBaseException as exc:
+                    why = why or str(exc).splitlines()[0]
+            if why is not None:
+                return f"config '{name}': {why}"
     return None
 
 

@@ -32,12 +32,12 @@ import numpy as np
 from slamlab import robot
 from slamlab.datasets.stamps import nearest_index
 from slamlab.errors import DataError
-from slamlab.frames import RGBDFrame
+from slamlab.frames import KINECT_MAX_DEPTH_M, KINECT_MIN_DEPTH_M, RGBDFrame
 
 __all__ = ["open_rgbd", "RGBDStream", "iter_struct_cell", "DEPTH_MIN_MM", "DEPTH_MAX_MM"]
 
-DEPTH_MIN_MM = 400  # Kinect v2 valid range (THOR_FORMAT.md: about 400..4500 mm)
-DEPTH_MAX_MM = 4500
+DEPTH_MIN_MM = round(KINECT_MIN_DEPTH_M * 1000)  # Kinect v2 valid range (THOR_FORMAT.md: about 400..4500 mm)
+DEPTH_MAX_MM = round(KINECT_MAX_DEPTH_M * 1000)
 MAX_PAIR_GAP_S = 0.25  # colour further than this from a depth frame is not its colour
 N_FIELDS = 16
 F_T, F_IMU_RPY, F_ODOM, F_HEAD, F_DATA = 0, 2, 4, 5, 15  # field positions (THOR_FORMAT.md)

@@ -1,6 +1,9 @@
 """The particle-filter SLAM loop: predict, match + weigh, map, resample.
 
-    run_slam(sequence, cfg) -> SlamResult
+    run_slam(sequence, components) -> SlamResult
+
+`components` are typed objects built once at the application edge from the config groups
+(`slamlab.assemble.build_components`); the engine never sees a config dict.
 
 Per processed step (see `steps.select_steps`):
 1. predict: every particle moves by the odometry increment since the last step (+ noise,
@@ -35,13 +38,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
 
 from slamlab.errors import ConfigError
 from slamlab.frames import Sequence
 from slamlab.geometry import FloatArray, se2_between, se2_compose
-from slamlab.slam.filters import FilterKind, SharedMapFilter
+from slamlab.slam.filters import FilterKind
 from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import Matcher
 from slamlab.slam.motion import MotionModel
@@ -55,15 +56,11 @@ from slamlab.slam.weighting import Weighting, effective_sample_size
 
 log = logging.getLogger(__name__)
 
-MODES = ("slam", "odometry", "predict")
-# record.particles: auto keeps the history where the report can draw it (every path of a
-# prediction-only run; the weights of a filter with this few particles)
-RECORD_AUTO_MAX_PARTICLES = 10
-
 
 @dataclass(frozen=True, slots=True)
 class Components:
-    """The validated pieces of one run, built from the config groups."""
+    """The checked pieces of one run: the run-level knobs (`slamlab.config.run`; units in the
+    names) and the component objects built from the config groups."""
 
     particles: int
     seed: int
@@ -84,85 +81,6 @@ class Components:
     record_replay: bool
 
 
-def build_component(cfg: DictConfig, group: str, base: type) -> object:
-    """Instantiate `cfg[group]` (a YAML with `_target_`) and check it is a `base`.
-
-    Errors raised by the component's own checks surface as ConfigError naming the full key;
-    an unknown or broken `_target_` as ConfigError(`group._target_`)."""
-    node = cfg.get(group) if isinstance(cfg, DictConfig) else None
-    if node is None or "_target_" not in node:
-        raise ConfigError(group, "missing: choose one of the files in conf/%s/" % group)
-    try:
-        obj = instantiate(node)
-    except Exception as exc:  # hydra wraps constructor errors: find ours in the chain
-        e: BaseException | None = exc
-        while e is not None:
-            if isinstance(e, ConfigError):
-                raise e from None
-            e = e.__cause__ or e.__context__
-        raise ConfigError(f"{group}._target_", f"cannot build {node.get('_target_')!r}: {exc}") from exc
-    if not isinstance(obj, base):
-        raise ConfigError(f"{group}._target_", f"{node.get('_target_')!r} is not a {base.__name__}")
-    return obj
-
-
-def _int(cfg: DictConfig, key: str, minimum: int, default: int | None = None, allow_none: bool = False) -> int | None:
-    v = OmegaConf.select(cfg, key, default=default)
-    if v is None and allow_none:
-        return None
-    if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
-        raise ConfigError(key, f"must be an integer >= {minimum}{' or null' if allow_none else ''}, got {v!r}")
-    return int(v)
-
-
-def _float(cfg: DictConfig, key: str, default: float) -> float:
-    v = OmegaConf.select(cfg, key, default=default)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
-        raise ConfigError(key, f"must be a number >= 0, got {v!r}")
-    return float(v)
-
-
-def validate_config(cfg: DictConfig) -> Components:
-    """Check every value the engine uses and build the components; raises ConfigError
-    naming the key (e.g. `particles`, `resampler.threshold`) before any work is done."""
-    particles = _int(cfg, "particles", 1)
-    seed = _int(cfg, "seed", 0, default=0)
-    mode = OmegaConf.select(cfg, "mode", default="slam")
-    if mode not in MODES:
-        raise ConfigError("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
-    record = OmegaConf.select(cfg, "record.particles", default="auto")
-    if record not in ("auto", True, False):
-        raise ConfigError("record.particles", f"must be auto, true or false, got {record!r}")
-    if record == "auto":
-        record = mode == "predict" or (mode == "slam" and particles <= RECORD_AUTO_MAX_PARTICLES)  # type: ignore[operator]
-    replay = OmegaConf.select(cfg, "record.replay", default=True)
-    if not isinstance(replay, bool):
-        raise ConfigError("record.replay", f"must be true or false, got {replay!r}")
-    skip = OmegaConf.select(cfg, "steps.skip_static_start", default=True)
-    if not isinstance(skip, bool):
-        raise ConfigError("steps.skip_static_start", f"must be true or false, got {skip!r}")
-    return Components(
-        particles=particles,  # type: ignore[arg-type]
-        seed=seed,  # type: ignore[arg-type]
-        mode=mode,
-        every=_int(cfg, "steps.every", 1, default=1),  # type: ignore[arg-type]
-        min_distance_m=_float(cfg, "steps.min_distance_m", 0.0),
-        min_angle_rad=_float(cfg, "steps.min_angle_rad", 0.0),
-        skip_static_start=skip,
-        max_scans=_int(cfg, "steps.max_scans", 1, default=None, allow_none=True),
-        max_steps=_int(cfg, "steps.max_steps", 1, default=None, allow_none=True),
-        motion=build_component(cfg, "motion", MotionModel),  # type: ignore[arg-type]
-        weighting=build_component(cfg, "weighting", Weighting),  # type: ignore[arg-type]
-        resampler=build_component(cfg, "resampler", Resampler),  # type: ignore[arg-type]
-        matcher=build_component(cfg, "matcher", Matcher),  # type: ignore[arg-type]
-        map=build_component(cfg, "map", MapSettings),  # type: ignore[arg-type]
-        # configs saved before the filter group existed ran the course filter
-        filter=build_component(cfg, "filter", FilterKind) if OmegaConf.select(cfg, "filter") is not None else SharedMapFilter(),  # type: ignore[arg-type]
-        record_particles=bool(record),
-        record_replay=replay,
-    )
-
-
 def ancestral_path(hist_poses: FloatArray, hist_parent: np.ndarray, last: int) -> FloatArray:
     """The path of particle `last` of the final step back through its ancestors.
 
@@ -180,7 +98,7 @@ def ancestral_path(hist_poses: FloatArray, hist_parent: np.ndarray, last: int) -
 
 def run_slam(
     sequence: Sequence,
-    cfg: DictConfig,
+    c: Components,
     progress: Callable[[int, int], None] | None = None,
 ) -> SlamResult:
     """Run the filter (or dead reckoning, `mode: odometry`) over `sequence`.
@@ -190,7 +108,6 @@ def run_slam(
     True the run stops there and returns the scans up to that step (Ctrl-C keeps a partial run).
     Returns one pose per scan (the first `steps.max_scans` scans when set; with
     `steps.max_steps`, the scans up to the last processed step)."""
-    c = validate_config(cfg)
     scans = sequence.scans if c.max_scans is None else sequence.scans[: c.max_scans]
     if not scans:
         raise ConfigError("steps.max_scans", f"sequence {sequence.name!r} has no scans to process")

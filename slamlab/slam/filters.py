@@ -20,10 +20,8 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from slamlab.errors import ConfigError
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
-from slamlab.slam._keys import require_positive
 from slamlab.slam.grid import MapSettings, OccupancyGrid
 from slamlab.slam.matcher import Matcher
 from slamlab.slam.scan import ScanPoints, points_to_world
@@ -174,11 +172,10 @@ class RaoBlackwellFilter(FilterKind):
 
     name = "rbpf"
 
+    # defaults and checks: `slamlab.config.slam.RbpfFilterConfig` (both null = off)
     def __init__(self, step_ref_m: float | None = None, step_ref_rad: float | None = None) -> None:
-        if (step_ref_m is None) != (step_ref_rad is None):
-            raise ConfigError("filter.step_ref_rad", "set step_ref_m and step_ref_rad together (or both null)")
-        self.step_ref_m = None if step_ref_m is None else require_positive("filter", "step_ref_m", step_ref_m)
-        self.step_ref_rad = None if step_ref_rad is None else require_positive("filter", "step_ref_rad", step_ref_rad)
+        self.step_ref_m = None if step_ref_m is None else float(step_ref_m)
+        self.step_ref_rad = None if step_ref_rad is None else float(step_ref_rad)
 
     def step_scale(self, increment: FloatArray) -> float:
         if self.step_ref_m is None or self.step_ref_rad is None:

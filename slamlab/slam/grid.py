@@ -14,61 +14,14 @@ import numpy as np
 
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
-from slamlab.slam._keys import require_nonnegative, require_positive
-from slamlab.errors import ConfigError
+from slamlab.config.slam import MapConfig
 from slamlab.slam.raycast import gaussian_kernel, raycast_update, update_field
 
-GROUP = "map"
-
-
-class MapSettings:
-    """The `map/` config group: resolution and log-odds model of the occupancy grid.
-
-    - resolution_m: cell size (m).
-    - log_odds_occupied (> 0) / log_odds_free (< 0): added to hit / traversed cells.
-    - clamp_min / clamp_max: log-odds bounds (clamp_min < 0 < clamp_max); small bounds
-      let the map forget moving people quickly.
-    - occupied_threshold: a cell counts as a wall when its log-odds is above this.
-    - ground_threshold_m: scan points lower than this above the floor are dropped.
-    - min_range_m / max_range_m: beams outside are not used (null = the sequence's).
-    - initial_size_m: side of the square grid at start; growth_margin_m: extra room added
-      whenever the grid must grow.
-    """
-
-    def __init__(
-        self,
-        resolution_m: float = 0.05,
-        log_odds_occupied: float = 0.85,
-        log_odds_free: float = -0.4,
-        clamp_min: float = -5.0,
-        clamp_max: float = 5.0,
-        occupied_threshold: float = 0.0,
-        ground_threshold_m: float = 0.1,
-        min_range_m: float | None = None,
-        max_range_m: float | None = None,
-        initial_size_m: float = 40.0,
-        growth_margin_m: float = 10.0,
-    ) -> None:
-        self.resolution_m = require_positive(GROUP, "resolution_m", resolution_m)
-        self.log_odds_occupied = require_positive(GROUP, "log_odds_occupied", log_odds_occupied)
-        if not (isinstance(log_odds_free, (int, float)) and log_odds_free < 0):
-            raise ConfigError(f"{GROUP}.log_odds_free", f"must be < 0, got {log_odds_free!r}")
-        self.log_odds_free = float(log_odds_free)
-        if not (isinstance(clamp_min, (int, float)) and clamp_min < 0):
-            raise ConfigError(f"{GROUP}.clamp_min", f"must be < 0, got {clamp_min!r}")
-        if not (isinstance(clamp_max, (int, float)) and clamp_max > 0):
-            raise ConfigError(f"{GROUP}.clamp_max", f"must be > 0, got {clamp_max!r}")
-        self.clamp_min, self.clamp_max = float(clamp_min), float(clamp_max)
-        if not (isinstance(occupied_threshold, (int, float)) and self.clamp_min <= occupied_threshold < self.clamp_max):
-            raise ConfigError(f"{GROUP}.occupied_threshold", f"must lie in [clamp_min, clamp_max), got {occupied_threshold!r}")
-        self.occupied_threshold = float(occupied_threshold)
-        self.ground_threshold_m = float(ground_threshold_m)
-        self.min_range_m = None if min_range_m is None else require_nonnegative(GROUP, "min_range_m", min_range_m)
-        self.max_range_m = None if max_range_m is None else require_positive(GROUP, "max_range_m", max_range_m)
-        if self.min_range_m is not None and self.max_range_m is not None and self.min_range_m >= self.max_range_m:
-            raise ConfigError(f"{GROUP}.max_range_m", "must be greater than map.min_range_m")
-        self.initial_size_m = require_positive(GROUP, "initial_size_m", initial_size_m)
-        self.growth_margin_m = require_nonnegative(GROUP, "growth_margin_m", growth_margin_m)
+# The `map/` config group's schema is the settings object the grid reads: resolution_m,
+# log-odds (occupied > 0, free < 0, clamp bounds), occupied_threshold, ground_threshold_m,
+# min/max_range_m, initial_size_m, growth_margin_m (see `slamlab.config.slam.MapConfig`,
+# which also checks them).
+MapSettings = MapConfig
 
 
 class OccupancyGrid:

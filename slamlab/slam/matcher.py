@@ -11,7 +11,8 @@ With `move_to_best` the particle moves to its best offset; the score there is it
 correlation for the weighting either way.
 
 Adding a matcher: subclass `Matcher`, implement `match` (shared map, filter=course) and
-`match_each` (a map per particle, filter=rbpf), add `conf/matcher/NAME.yaml`.
+`match_each` (a map per particle, filter=rbpf), add its schema (`slamlab.config.slam`, listed in
+`slamlab.config.SCHEMAS`) and `conf/matcher/NAME.yaml`.
 """
 
 from __future__ import annotations
@@ -23,16 +24,14 @@ import math
 import numba
 import numpy as np
 
+from slamlab.config.slam import GridMatcherConfig as _Grid
+from slamlab.config.slam import LikelihoodMatcherConfig as _Field
 from slamlab.errors import ConfigError
 from slamlab.geometry import FloatArray, wrap_angle
-from slamlab.slam._keys import require_int, require_nonnegative, require_positive
 from slamlab.slam.grid import OccupancyGrid
 from slamlab.slam.scan import ScanPoints
 from slamlab.slam.tiled_match import tiled_field_search, tiled_grid_search
 from slamlab.slam.tiles import TiledMaps
-
-GROUP = "matcher"
-
 
 @numba.njit(cache=True)
 def score_hits(lo, thresh, ox, oy, inv_res, x, y, th, pts):
@@ -303,20 +302,17 @@ class GridMatcher(Matcher):
     k-th scan point.
     """
 
+    # defaults and checks: `slamlab.config.slam.GridMatcherConfig` (built from it at the edge)
     def __init__(
         self,
-        xy_half_width_m: float = 0.2,
-        xy_step_m: float = 0.05,
-        yaw_half_width_rad: float = 0.0,
-        yaw_step_rad: float = 0.01,
-        move_to_best: bool = True,
-        beam_step: int = 1,
+        xy_half_width_m: float = _Grid.xy_half_width_m,
+        xy_step_m: float = _Grid.xy_step_m,
+        yaw_half_width_rad: float = _Grid.yaw_half_width_rad,
+        yaw_step_rad: float = _Grid.yaw_step_rad,
+        move_to_best: bool = _Grid.move_to_best,
+        beam_step: int = _Grid.beam_step,
     ) -> None:
-        require_nonnegative(GROUP, "xy_half_width_m", xy_half_width_m)
-        require_positive(GROUP, "xy_step_m", xy_step_m)
-        require_nonnegative(GROUP, "yaw_half_width_rad", yaw_half_width_rad)
-        require_positive(GROUP, "yaw_step_rad", yaw_step_rad)
-        self.beam_step = require_int(GROUP, "beam_step", beam_step, 1)
+        self.beam_step = int(beam_step)
         self.offsets = offset_grid(xy_half_width_m, xy_step_m, yaw_half_width_rad, yaw_step_rad)
         self.move_to_best = bool(move_to_best)
 
@@ -358,34 +354,32 @@ class LikelihoodFieldMatcher(Matcher):
       prediction costs 0.5 (d / sigma)^2 score units (0 = no prior).
     """
 
+    # defaults and checks: `slamlab.config.slam.LikelihoodMatcherConfig` (built from it at the edge)
     def __init__(
         self,
-        sigma_m: float = 0.05,
-        radius_m: float = 0.2,
-        xy_half_width_m: float = 0.1,
-        xy_step_m: float = 0.05,
-        yaw_half_width_rad: float = 0.1,
-        yaw_step_rad: float = 0.025,
-        coarse_beam_step: int = 3,
-        beam_step: int = 1,
-        refine_levels: int = 4,
-        prior_sigma_xy_m: float = 0.0,
-        prior_sigma_yaw_rad: float = 0.0,
-        move_to_best: bool = True,
+        sigma_m: float = _Field.sigma_m,
+        radius_m: float = _Field.radius_m,
+        xy_half_width_m: float = _Field.xy_half_width_m,
+        xy_step_m: float = _Field.xy_step_m,
+        yaw_half_width_rad: float = _Field.yaw_half_width_rad,
+        yaw_step_rad: float = _Field.yaw_step_rad,
+        coarse_beam_step: int = _Field.coarse_beam_step,
+        beam_step: int = _Field.beam_step,
+        refine_levels: int = _Field.refine_levels,
+        prior_sigma_xy_m: float = _Field.prior_sigma_xy_m,
+        prior_sigma_yaw_rad: float = _Field.prior_sigma_yaw_rad,
+        move_to_best: bool = _Field.move_to_best,
     ) -> None:
-        sxy = require_nonnegative(GROUP, "prior_sigma_xy_m", prior_sigma_xy_m)
-        syaw = require_nonnegative(GROUP, "prior_sigma_yaw_rad", prior_sigma_yaw_rad)
+        sxy, syaw = float(prior_sigma_xy_m), float(prior_sigma_yaw_rad)
         self.kxy = 0.5 / sxy**2 if sxy > 0 else 0.0
         self.kyaw = 0.5 / syaw**2 if syaw > 0 else 0.0
-        self.field_sigma_m = require_positive(GROUP, "sigma_m", sigma_m)
-        self.field_radius_m = require_positive(GROUP, "radius_m", radius_m)
-        require_nonnegative(GROUP, "xy_half_width_m", xy_half_width_m)
-        self.xy_step_m = require_positive(GROUP, "xy_step_m", xy_step_m)
-        require_nonnegative(GROUP, "yaw_half_width_rad", yaw_half_width_rad)
-        self.yaw_step_rad = require_positive(GROUP, "yaw_step_rad", yaw_step_rad)
-        self.coarse_beam_step = require_int(GROUP, "coarse_beam_step", coarse_beam_step, 1)
-        self.beam_step = require_int(GROUP, "beam_step", beam_step, 1)
-        self.refine_levels = require_int(GROUP, "refine_levels", refine_levels, 0)
+        self.field_sigma_m = float(sigma_m)
+        self.field_radius_m = float(radius_m)
+        self.xy_step_m = float(xy_step_m)
+        self.yaw_step_rad = float(yaw_step_rad)
+        self.coarse_beam_step = int(coarse_beam_step)
+        self.beam_step = int(beam_step)
+        self.refine_levels = int(refine_levels)
         self.offsets = offset_grid(xy_half_width_m, xy_step_m, yaw_half_width_rad, yaw_step_rad)
         self.move_to_best = bool(move_to_best)
 

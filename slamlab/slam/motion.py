@@ -5,7 +5,9 @@ The increment is `u = o_t (-) o_t+1` written as a pose in the robot frame at t
 four-parameter model, the noisy rot1/trans/rot2 decomposition of u). When the robot stands
 still (u == 0) neither model adds noise, so a parked robot does not diffuse.
 
-Adding a model: subclass `MotionModel`, implement `sample`, add `conf/motion/NAME.yaml`.
+Adding a model: subclass `MotionModel`, implement `sample`, add its schema
+(a dataclass in `slamlab.config.slam`, listed in `slamlab.config.SCHEMAS`) and
+`conf/motion/NAME.yaml` extending it.
 """
 
 from __future__ import annotations
@@ -14,11 +16,9 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from slamlab.errors import ConfigError
+from slamlab.config.slam import CourseMotionConfig as _Course
+from slamlab.config.slam import Odometry4MotionConfig as _Odo4
 from slamlab.geometry import FloatArray, se2_compose, wrap_angle
-from slamlab.slam._keys import require_nonnegative, require_positive
-
-GROUP = "motion"
 
 
 class MotionModel(ABC):
@@ -48,21 +48,20 @@ class CourseMotion(MotionModel):
     `linear`, halving the step halves the accumulated variance).
     """
 
+    # defaults and checks: `slamlab.config.slam.CourseMotionConfig` (built from it at the edge)
     def __init__(
         self,
-        sigma_xy_m: float = 0.01,
-        sigma_theta_rad: float = 0.0087,
-        per_distance_m: float = 0.1,
-        per_angle_rad: float = 0.1,
-        growth: str = "linear",
+        sigma_xy_m: float = _Course.sigma_xy_m,
+        sigma_theta_rad: float = _Course.sigma_theta_rad,
+        per_distance_m: float = _Course.per_distance_m,
+        per_angle_rad: float = _Course.per_angle_rad,
+        growth: str = _Course.growth,
     ) -> None:
-        if growth not in ("linear", "sqrt"):
-            raise ConfigError(f"{GROUP}.growth", f"must be linear or sqrt, got {growth!r}")
         self.growth = growth
-        self.sigma_xy_m = require_nonnegative(GROUP, "sigma_xy_m", sigma_xy_m)
-        self.sigma_theta_rad = require_nonnegative(GROUP, "sigma_theta_rad", sigma_theta_rad)
-        self.per_distance_m = require_positive(GROUP, "per_distance_m", per_distance_m)
-        self.per_angle_rad = require_positive(GROUP, "per_angle_rad", per_angle_rad)
+        self.sigma_xy_m = float(sigma_xy_m)
+        self.sigma_theta_rad = float(sigma_theta_rad)
+        self.per_distance_m = float(per_distance_m)
+        self.per_angle_rad = float(per_angle_rad)
 
     def sample(self, poses: FloatArray, increment: FloatArray, rng: np.random.Generator) -> FloatArray:
         u = np.asarray(increment, dtype=np.float64)
@@ -95,11 +94,10 @@ class Odometry4Motion(MotionModel):
     from trans, alpha4: trans from rot (m^2/rad^2).
     """
 
-    def __init__(self, alpha1: float = 0.05, alpha2: float = 0.01, alpha3: float = 0.05, alpha4: float = 0.01) -> None:
-        self.a1 = require_nonnegative(GROUP, "alpha1", alpha1)
-        self.a2 = require_nonnegative(GROUP, "alpha2", alpha2)
-        self.a3 = require_nonnegative(GROUP, "alpha3", alpha3)
-        self.a4 = require_nonnegative(GROUP, "alpha4", alpha4)
+    # defaults and checks: `slamlab.config.slam.Odometry4MotionConfig`
+    def __init__(self, alpha1: float = _Odo4.alpha1, alpha2: float = _Odo4.alpha2, alpha3: float = _Odo4.alpha3,
+                 alpha4: float = _Odo4.alpha4) -> None:
+        self.a1, self.a2, self.a3, self.a4 = float(alpha1), float(alpha2), float(alpha3), float(alpha4)
 
     def _decompose(self, increment: FloatArray) -> tuple[float, float, float, float, float, float]:
         """(rot1, trans, rot2) of the increment and their noise deviations."""

@@ -4,7 +4,8 @@ All four schemes are unbiased (each particle's expected number of copies is N * 
 differ in variance: multinomial > stratified >= systematic, residual in between. The engine
 resamples only when N_eff = 1 / sum(w^2) < threshold * N (`threshold` in (0, 1]).
 
-Adding a scheme: subclass `Resampler`, implement `indices`, add `conf/resampler/NAME.yaml`.
+Adding a scheme: subclass `Resampler`, implement `indices`, add its schema
+(`slamlab.config.slam`, listed in `slamlab.config.SCHEMAS`) and `conf/resampler/NAME.yaml`.
 """
 
 from __future__ import annotations
@@ -13,18 +14,16 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from slamlab.config.slam import ResamplerConfig
 from slamlab.geometry import FloatArray
-from slamlab.slam._keys import require_fraction
 from slamlab.slam.weighting import effective_sample_size
-
-GROUP = "resampler"
 
 
 class Resampler(ABC):
     """Interface: `indices(weights (N,), rng) -> int64 (N,)`, plus the N_eff trigger."""
 
-    def __init__(self, threshold: float = 0.5) -> None:
-        self.threshold = require_fraction(GROUP, "threshold", threshold)
+    def __init__(self, threshold: float = ResamplerConfig.threshold) -> None:  # checked by ResamplerConfig
+        self.threshold = float(threshold)
 
     def should_resample(self, weights: FloatArray) -> bool:
         """True when N_eff < threshold * N."""

@@ -20,7 +20,8 @@ the correlation (the course's "easy, slightly incorrect" w *= corr); `linear_exp
 `logsumexp` say it is proportional to exp(correlation) ("easy, correct"), and only
 `logsumexp` computes that safely.
 
-Adding a scheme: subclass `Weighting`, implement `update`, add `conf/weighting/NAME.yaml`.
+Adding a scheme: subclass `Weighting`, implement `update`, add its schema
+(`slamlab.config.slam`, listed in `slamlab.config.SCHEMAS`) and `conf/weighting/NAME.yaml`.
 """
 
 from __future__ import annotations
@@ -32,10 +33,9 @@ import warnings
 
 import numpy as np
 
+from slamlab.config.slam import LinearExpWeightingConfig as _LinExp
+from slamlab.config.slam import LogSumExpWeightingConfig as _LogSumExp
 from slamlab.geometry import FloatArray
-from slamlab.slam._keys import require_positive
-
-GROUP = "weighting"
 log = logging.getLogger(__name__)
 # exp(x) is inf in float64 above this (log of the largest float64, 1.8e308).
 OVERFLOW_SCORE = float(np.log(np.finfo(np.float64).max))
@@ -122,8 +122,8 @@ class LinearExpWeighting(Weighting):
     `temperature` as in `LogSumExpWeighting`. Overflow (exp or the sum is inf) and
     underflow (the sum is 0) are counted separately and replaced by uniform weights."""
 
-    def __init__(self, temperature: float = 1.0) -> None:
-        self.temperature = require_positive(GROUP, "temperature", temperature)
+    def __init__(self, temperature: float = _LinExp.temperature) -> None:  # checked by LinearExpWeightingConfig
+        self.temperature = float(temperature)
         self.underflows = 0
         self.overflows = 0
 
@@ -147,8 +147,8 @@ class LogSumExpWeighting(Weighting):
     best's gets e (2.718) times less weight from this step.
     """
 
-    def __init__(self, temperature: float = 1.0) -> None:
-        self.temperature = require_positive(GROUP, "temperature", temperature)
+    def __init__(self, temperature: float = _LogSumExp.temperature) -> None:  # checked by LogSumExpWeightingConfig
+        self.temperature = float(temperature)
         self.underflows = 0
 
     def update(self, log_weights: FloatArray, scores: FloatArray) -> FloatArray:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slamlab.camera import pixel_rays, scaled_intrinsics
-from slamlab.frames import CameraIntrinsics
+from slamlab.frames import KINECT_MAX_DEPTH_M, KINECT_MIN_DEPTH_M, CameraIntrinsics
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,8 +73,8 @@ class Backprojector:
         intrinsics: CameraIntrinsics,
         stride: int = 1,
         undistort: bool = True,
-        min_depth_m: float = 0.4,
-        max_depth_m: float = 4.5,
+        min_depth_m: float = KINECT_MIN_DEPTH_M,
+        max_depth_m: float = KINECT_MAX_DEPTH_M,
     ):
         if stride < 1:
             raise ValueError(f"stride must be >= 1, got {stride}")

@@ -1,9 +1,10 @@
 """Floor detectors: which depth pixels see the ground. Chosen by the `ground/` config group.
 
-Each detector is a small class built by `hydra.utils.instantiate` from `conf/ground/NAME.yaml`
-(`_target_` + its knobs). A detector is called with a `GroundQuery` (the frame's valid depth
-points, their camera-to-world transform) and returns a bool mask over the points.
-Adding a detector = one class here (or anywhere importable) + one YAML file.
+Each detector is a small class built from its schema (`slamlab.config.texture`: `_target_` +
+its knobs, picked by `conf/ground/NAME.yaml`). A detector is called with a `GroundQuery` (the
+frame's valid depth points, their camera-to-world transform) and returns a bool mask over the
+points.
+Adding a detector = one class here (or anywhere importable), its schema and one YAML file.
 
 World frame: z up, z = 0 on the floor (the body origin is `body_height_m` above it).
 
@@ -22,6 +23,9 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from slamlab.config.texture import ImagePlaneGroundConfig as _ImagePlane
+from slamlab.config.texture import PlaneGroundConfig as _Plane
+from slamlab.config.texture import ThresholdGroundConfig as _Threshold
 from slamlab.frames import CameraIntrinsics
 from slamlab.texture.backproject import DepthPoints
 
@@ -92,9 +96,8 @@ class ThresholdGround(GroundDetector):
     Relies entirely on the pose chain (body height, roll/pitch, head angles): errors in those
     tilt the apparent floor, so far points fail first. 5 cm suits the Kinect's noise to ~3 m."""
 
-    def __init__(self, tolerance_m: float = 0.05, name: str = "threshold"):
-        if tolerance_m <= 0:
-            raise ValueError(f"tolerance_m must be > 0, got {tolerance_m}")
+    # defaults and checks: `slamlab.config.texture.ThresholdGroundConfig`
+    def __init__(self, tolerance_m: float = _Threshold.tolerance_m, name: str = _Threshold.name):
         self.tolerance_m = float(tolerance_m)
         self.name = name
 
@@ -116,18 +119,18 @@ class PlaneGround(GroundDetector):
 
     def __init__(
         self,
-        distance_threshold_m: float = 0.03,
-        ransac_n: int = 3,
-        num_iterations: int = 200,
-        max_tilt_deg: float = 10.0,
-        max_height_m: float = 0.15,
-        fit_max_points: int = 5000,
-        max_planes: int = 3,
-        min_inliers: int = 200,
-        seed: int = 0,
-        refine_iterations: int = 2,
-        name: str = "plane",
-    ):
+        distance_threshold_m: float = _Plane.distance_threshold_m,
+        ransac_n: int = _Plane.ransac_n,
+        num_iterations: int = _Plane.num_iterations,
+        max_tilt_deg: float = _Plane.max_tilt_deg,
+        max_height_m: float = _Plane.max_height_m,
+        fit_max_points: int = _Plane.fit_max_points,
+        max_planes: int = _Plane.max_planes,
+        min_inliers: int = _Plane.min_inliers,
+        seed: int = _Plane.seed,
+        refine_iterations: int = _Plane.refine_iterations,
+        name: str = _Plane.name,
+    ):  # defaults and checks: `slamlab.config.texture.PlaneGroundConfig`
         self.distance_threshold_m = float(distance_threshold_m)
         self.ransac_n = int(ransac_n)
         self.num_iterations = int(num_iterations)
@@ -260,9 +263,8 @@ class ImagePlaneGround(GroundDetector):
     to ~9 %, which would otherwise reject the floor in the image corners.
     `eps` is dimensionless: the height tolerance is eps x depth (0.02 -> 2 cm at 1 m, 6 cm at 3 m)."""
 
-    def __init__(self, eps: float = 0.02, name: str = "image_plane"):
-        if eps <= 0:
-            raise ValueError(f"eps must be > 0, got {eps}")
+    # defaults and checks: `slamlab.config.texture.ImagePlaneGroundConfig`
+    def __init__(self, eps: float = _ImagePlane.eps, name: str = _ImagePlane.name):
         self.eps = float(eps)
         self.name = name
 

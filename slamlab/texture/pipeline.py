@@ -30,9 +30,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
 
 from slamlab.camera import scaled_intrinsics
+from slamlab.config import SCHEMAS, construct
+from slamlab.config.texture import TextureConfig
 from slamlab.io.atomic import atomic_path
 from slamlab.io.rundir import TextureFiles
 from slamlab.errors import ConfigError, DataError, SlamlabError
@@ -56,8 +57,6 @@ __all__ = [
 ]
 
 log = logging.getLogger("slamlab")
-
-GROUND_CONF_DIR = Path(__file__).resolve().parents[1] / "conf" / "ground"
 
 # Why a frame was not used (keys of TextureResult.skipped).
 SKIP_REASONS = (
@@ -193,37 +192,25 @@ def interpolate_poses(times: np.ndarray, poses: np.ndarray, t_query: np.ndarray 
 
 
 # ---- config -------------------------------------------------------------------------------
-def build_detector(ground_cfg: DictConfig | dict) -> GroundDetector:
-    """The ground detector named by a `ground/` config (`_target_` + knobs)."""
-    from hydra.utils import instantiate
-
-    cfg = ground_cfg if isinstance(ground_cfg, DictConfig) else OmegaConf.create(ground_cfg)
-    if "_target_" not in cfg:
-        raise ConfigError("ground._target_", "missing: pick a detector, e.g. ground=threshold")
-    try:
-        det = instantiate(cfg)
-    except Exception as exc:  # bad knob names / values come back wrapped by Hydra
-        raise ConfigError("ground", f"cannot build detector {cfg.get('_target_')}: {exc}") from None
-    if not callable(det):
-        raise ConfigError("ground._target_", f"{cfg._target_} is not a detector (not callable)")
-    return det
+def build_detector(ground: object) -> GroundDetector:
+    """A fresh ground detector from a `ground/` schema object (`slamlab.config.texture`: its
+    `_target_` and knobs). Fresh, because a detector may carry state (`plane`'s RANSAC
+    generator): every texture run starts from the configured seed."""
+    return construct(ground, GroundDetector, "ground")
 
 
-def _packaged_detector(name: str) -> GroundDetector:
-    path = GROUND_CONF_DIR / f"{name}.yaml"
-    if not path.is_file():
-        raise ConfigError("texture.evaluate_detectors", f"no ground config named {name!r} ({path})")
-    return build_detector(OmegaConf.load(path))
+def evaluated_detector(name: str) -> GroundDetector:
+    """The detector of the `ground/` choice `name` at its schema's values (the detectors
+    `texture.evaluate_detectors` compares on labelled frames)."""
+    schema = SCHEMAS["ground"].get(str(name))
+    if schema is None:
+        raise ConfigError("texture.evaluate_detectors", f"no ground detector named {name!r} (known: {', '.join(SCHEMAS['ground'])})")
+    return build_detector(schema())
 
 
-def texture_enabled(sequence: Sequence, texture_cfg: DictConfig) -> bool:
+def texture_enabled(sequence: Sequence, texture: TextureConfig) -> bool:
     """Texture runs only when the dataset has RGB-D and the config is not `texture=none`."""
-    return sequence.rgbd is not None and bool(texture_cfg.get("enabled", True))
-
-
-def _cfg(texture_cfg: DictConfig, key: str, default):
-    v = texture_cfg.get(key, default)
-    return default if v is None and default is not None else v
+    return sequence.rgbd is not None and texture.enabled
 
 
 # ---- the run ------------------------------------------------------------------------------
@@ -232,8 +219,8 @@ def run_texture(
     times: np.ndarray,
     poses: np.ndarray,
     grid: GridImage,
-    ground_cfg: DictConfig,
-    texture_cfg: DictConfig,
+    ground: object,
+    texture: TextureConfig,
     progress: Callable[[int, int], None] | None = None,
     sample_frames: int = 0,
 ) -> TextureResult:
@@ -242,7 +229,8 @@ def run_texture(
     - `times` (N,) scan times (s) and `poses` (N, 3) the trajectory at those times (x m, y m,
       theta rad; the SLAM estimate or the odometry) - interpolated at each frame's depth time;
     - `grid`: the occupancy map; the texture grid has its shape, resolution and origin;
-    - `ground_cfg`: a `ground/` config (detector); `texture_cfg`: a `texture/` config;
+    - `ground`: a `ground/` schema object (`slamlab.config.texture`), the detector to use;
+      `texture`: the `texture/` settings (checked when they were made);
     - `progress(done, total)`: optional, called after each frame (total = sequence.rgbd_count);
     - `sample_frames`: keep this many used frames spread over the stream for the report
       (every evaluated detector's floor mask and the registered colour; `samples.py`).
@@ -264,45 +252,37 @@ def run_texture(
         raise ConfigError("texture", f"trajectory: {exc}") from None
 
     calib: KinectCalibration = sequence.calibration
-    if bool(_cfg(texture_cfg, "calibration_mirrored", False)):
+    if texture.calibration_mirrored:
         calib = unmirror_calibration(calib)
-    stride = int(_cfg(texture_cfg, "stride", 1))
-    if stride < 1:
-        raise ConfigError("texture.stride", f"must be >= 1, got {stride}")
-    frame_every = int(_cfg(texture_cfg, "frame_every", 1))
-    if frame_every < 1:
-        raise ConfigError("texture.frame_every", f"must be >= 1, got {frame_every}")
-    max_frames = texture_cfg.get("max_frames", None)
-    max_rgb_dt = float(_cfg(texture_cfg, "max_rgb_dt_s", 0.1))
-    max_gap = float(_cfg(texture_cfg, "max_pose_gap_s", 0.5))
-    distort_rgb = bool(_cfg(texture_cfg, "distort_rgb", True))
-    average = str(_cfg(texture_cfg, "average", "mean"))
-    if average not in ("mean", "robust"):
-        raise ConfigError("texture.average", f"must be 'mean' or 'robust', got {average!r}")
+    frame_every = texture.frame_every
+    max_frames = texture.max_frames
+    max_rgb_dt = float(texture.max_rgb_dt_s)
+    max_gap = float(texture.max_pose_gap_s)
+    distort_rgb = texture.distort_rgb
 
     backproject = Backprojector(
         calib.ir,
-        stride=stride,
-        undistort=bool(_cfg(texture_cfg, "undistort_depth", True)),
-        min_depth_m=float(_cfg(texture_cfg, "min_depth_m", 0.4)),
-        max_depth_m=float(_cfg(texture_cfg, "max_depth_m", 4.5)),
+        stride=texture.stride,
+        undistort=texture.undistort_depth,
+        min_depth_m=float(texture.min_depth_m),
+        max_depth_m=float(texture.max_depth_m),
     )
-    detector = build_detector(ground_cfg)
+    detector = build_detector(ground)
     det_name = str(getattr(detector, "name", type(detector).__name__))
     acc = TextureAccumulator.like(
         grid,
-        average=average,
-        robust_reject=float(_cfg(texture_cfg, "robust_reject", 60.0)),
-        robust_min_count=int(_cfg(texture_cfg, "robust_min_count", 5)),
+        average=texture.average,
+        robust_reject=float(texture.robust_reject),
+        robust_min_count=int(texture.robust_min_count),
     )
 
     # Detection quality on labelled frames: the chosen detector, plus others for comparison.
     labels = sequence.ground_truth.ground_labels if sequence.ground_truth is not None else {}
     compare: dict[str, GroundDetector] = {}
     if labels:
-        for name in _cfg(texture_cfg, "evaluate_detectors", []) or []:
+        for name in texture.evaluate_detectors:
             if str(name) != det_name:
-                compare[str(name)] = _packaged_detector(str(name))
+                compare[str(name)] = evaluated_detector(str(name))
     detection: dict[str, DetectionCounts] = {}
     total = int(sequence.rgbd_count or 0)
     # which frames the report sees: labelled ones when there are labels (so precision and
@@ -315,8 +295,8 @@ def run_texture(
     sample_detectors: dict[str, GroundDetector] = {}
     if sample_at:  # the run's detector and every evaluated one, labels or not
         sample_detectors = {det_name: detector}
-        for name in _cfg(texture_cfg, "evaluate_detectors", []) or []:
-            sample_detectors.setdefault(str(name), compare.get(str(name)) or _packaged_detector(str(name)))
+        for name in texture.evaluate_detectors:
+            sample_detectors.setdefault(str(name), compare.get(str(name)) or evaluated_detector(str(name)))
 
     skipped: dict[str, int] = {}
     messages: list[str] = []

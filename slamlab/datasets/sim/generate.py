@@ -16,7 +16,6 @@ import os
 import shutil
 import uuid
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +33,7 @@ from slamlab.datasets.sim.sensors import (
 )
 from slamlab.datasets.sim.trajectory import Motion, simulate_motion
 from slamlab.datasets.sim.world import World, build_world, occupancy_grid
+from slamlab.config.sim import SimParams
 from slamlab.frames import KinectCalibration, Sequence
 from slamlab.geometry import wrap_angle
 
@@ -47,46 +47,6 @@ T0_UNIX_S = 1426800000.0  # March 2015, like the course logs
 LIDAR_HZ = 40.0
 JOINT_HZ = 100.0
 SEQUENCE = 0  # file number: train_lidar0.mat, DEPTH_0.mat, ...
-
-
-@dataclass(frozen=True)
-class SimParams:
-    """Every knob of the simulator (units in the names). Same params = same files, byte for
-    byte. `seed` is the dataset seed, independent of the SLAM filter's seed."""
-
-    seed: int = 0
-    layout: str = "ring"  # "ring" (17 x 13.5 m, one corridor loop) | "loops" (40 x 30 m, figure-eight, 176 m; see world.py)
-    duration_s: float = 85.0  # total, including the static start; one lap takes ~78 s
-    stand_s: float = 2.5  # robot stands still at the start
-    walk_speed_mps: float = 0.45
-    turn_rate_dps: float = 35.0  # turns in place at the corners
-    n_clutter: int = 22  # boxes and pillars (about half lower than the lidar)
-    world_scale: float = 1.0  # building size vs the 17 x 13.5 m plan (a lap takes ~78 s x scale)
-    n_people: int = 0  # people walking in the corridor (moving cylinders), off by default
-    step_freq_hz: float = 1.6  # gait: body pitch at this, roll at half of it
-    roll_amp_deg: float = 2.5
-    pitch_amp_deg: float = 1.5
-    jerk_deg: float = 0.0  # occasional larger roll/pitch jerks up to this (0 = none)
-    jerk_every_s: float = 8.0  # mean time between jerks
-    neck_sweep_deg: float = 0.0  # neck yaw sweeps +- this (0 = only the occasional glances)
-    neck_sweep_period_s: float = 12.0
-    range_noise_m: float = 0.01
-    dropout_fraction: float = 0.005
-    odom_scale_bias: float = 0.025  # odometry over-counts distance by 2.5 %
-    odom_yaw_drift_deg_per_min: float = 2.0  # heading drift while stepping
-    odom_yaw_bias_deg_per_m: float = 0.0
-    odom_noise_m_per_sqrt_s: float = 0.005
-    odom_noise_deg_per_sqrt_s: float = 0.3
-    imu_noise_deg: float = 0.2
-    rgbd: bool = True  # write DEPTH_0.mat (+ RGB if `rgb`)
-    rgb: bool = True
-    kinect_rate_hz: float = 2.0
-    kinect_scale: float = 0.25  # 1.0 = 512x424 depth, 1920x1080 colour
-    depth_noise_mm: float = 2.0
-    label_every: int = 5  # ground labels for every k-th depth frame
-    texture_res_m: float = 0.02
-    occupancy_res_m: float = 0.05
-
 
 # Knobs added after sequences were already cached: at their defaults they are left out of the
 # cache key and of sim.json, so every earlier configuration keeps its key and its bytes.

@@ -11,12 +11,12 @@ from __future__ import annotations
 import numpy as np
 
 from slamlab.camera import pixel_rays
-from slamlab.frames import CameraIntrinsics, GridImage, KinectCalibration
+from slamlab.frames import KINECT_MAX_DEPTH_M, KINECT_MIN_DEPTH_M, CameraIntrinsics, GridImage, KinectCalibration
 from slamlab.geometry import FloatArray
 from slamlab.datasets.sim.raycast import HIT_FLOOR, HIT_NONE, cast_camera, colour_hits
 
-DEPTH_MIN_M = 0.4
-DEPTH_MAX_M = 4.5
+DEPTH_MIN_M = KINECT_MIN_DEPTH_M
+DEPTH_MAX_M = KINECT_MAX_DEPTH_M
 PERSON_RGB = (190, 70, 60)
 CEILING_RGB = (225, 225, 215)  # rays that leave over the 2.5 m walls: an unmodelled ceiling
 

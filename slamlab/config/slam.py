@@ -1,0 +1,282 @@
+"""Schemas of the SLAM component groups: `motion/`, `weighting/`, `resampler/`, `matcher/`,
+`map/`, `filter/`. One dataclass per component is the single source of its keys, defaults,
+types (Hydra checks them when it composes) and value ranges (`__post_init__`, raising
+ConfigError naming the key). The YAML files in `slamlab/conf/<group>/` pick a schema and
+override values; `_target_` names the class built from it (`slamlab.assemble`).
+
+This module imports no component: the layers above it (slam, the pipeline) import it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, Optional
+
+from slamlab.config.checks import require_fraction, require_int, require_nonnegative, require_positive
+from slamlab.errors import ConfigError
+
+
+# ---- motion/ -------------------------------------------------------------------------------
+@dataclass
+class CourseMotionConfig:
+    """`motion=course`: odometry increment (+) Gaussian noise on x, y (m) and theta (rad) in
+    the robot frame. The course quotes N(0, diag[0.01 m, 0.01 m, 0.5 deg]) per 10-scan step;
+    each sigma is scaled by k = |increment| / per_distance_m + |dtheta| / per_angle_rad, so
+    there is no noise when the robot stands still."""
+
+    GROUP: ClassVar[str] = "motion"
+    _target_: str = "slamlab.slam.motion.CourseMotion"
+    sigma_xy_m: float = 0.01  # std of x and y noise for one reference increment (m)
+    sigma_theta_rad: float = 0.0087  # std of theta noise for one reference increment (rad, 0.5 deg)
+    per_distance_m: float = 0.1  # reference translation (m)
+    per_angle_rad: float = 0.1  # reference rotation (rad)
+    growth: str = "linear"  # linear (the course: sigma x k) | sqrt (sigma x sqrt(k): spread per metre independent of the step size)
+
+    def __post_init__(self) -> None:
+        g = self.GROUP
+        if self.growth not in ("linear", "sqrt"):
+            raise ConfigError(f"{g}.growth", f"must be linear or sqrt, got {self.growth!r}")
+        require_nonnegative(g, "sigma_xy_m", self.sigma_xy_m)
+        require_nonnegative(g, "sigma_theta_rad", self.sigma_theta_rad)
+        require_positive(g, "per_distance_m", self.per_distance_m)
+        require_positive(g, "per_angle_rad", self.per_angle_rad)
+
+
+@dataclass
+class Odometry4MotionConfig:
+    """`motion=odometry4`: the standard odometry model (Probabilistic Robotics table 5.6): the
+    increment is split into rot1, trans, rot2 and each is perturbed with a variance from the
+    four alphas."""
+
+    GROUP: ClassVar[str] = "motion"
+    _target_: str = "slamlab.slam.motion.Odometry4Motion"
+    alpha1: float = 0.05  # rotation noise from rotation (rad^2 / rad^2)
+    alpha2: float = 0.01  # rotation noise from translation (rad^2 / m^2)
+    alpha3: float = 0.05  # translation noise from translation (m^2 / m^2)
+    alpha4: float = 0.01  # translation noise from rotation (m^2 / rad^2)
+
+    def __post_init__(self) -> None:
+        for name in ("alpha1", "alpha2", "alpha3", "alpha4"):
+            require_nonnegative(self.GROUP, name, getattr(self, name))
+
+
+# ---- weighting/ ----------------------------------------------------------------------------
+@dataclass
+class LinearWeightingConfig:
+    """`weighting=linear`: the course's w *= correlation, normalised by the sum; underflows
+    fall back to uniform weights (counted in metrics.json)."""
+
+    GROUP: ClassVar[str] = "weighting"
+    _target_: str = "slamlab.slam.weighting.LinearWeighting"
+
+
+@dataclass
+class LinearExpWeightingConfig:
+    """`weighting=linear_exp`: w *= exp(correlation / temperature) in linear space (logsumexp's
+    model computed naively; overflows and underflows are counted and fall back to uniform)."""
+
+    GROUP: ClassVar[str] = "weighting"
+    _target_: str = "slamlab.slam.weighting.LinearExpWeighting"
+    temperature: float = 1.0  # score units, as in logsumexp
+
+    def __post_init__(self) -> None:
+        require_positive(self.GROUP, "temperature", self.temperature)
+
+
+@dataclass
+class LogSumExpWeightingConfig:
+    """`weighting=logsumexp` (and `logsumexp_t3`, temperature 3): log w += correlation /
+    temperature, normalised with log-sum-exp; never underflows or overflows."""
+
+    GROUP: ClassVar[str] = "weighting"
+    _target_: str = "slamlab.slam.weighting.LogSumExpWeighting"
+    temperature: float = 1.0  # score units: a particle scoring this much less gets e times less weight
+
+    def __post_init__(self) -> None:
+        require_positive(self.GROUP, "temperature", self.temperature)
+
+
+# ---- resampler/ ----------------------------------------------------------------------------
+@dataclass
+class ResamplerConfig:
+    """Every `resampler/` choice: resample when N_eff = 1 / sum(w^2) < threshold * N."""
+
+    GROUP: ClassVar[str] = "resampler"
+    _target_: str = "slamlab.slam.resample.SystematicResampler"
+    threshold: float = 0.5  # in (0, 1]; the course uses 0.2 (20 of 100)
+
+    def __post_init__(self) -> None:
+        require_fraction(self.GROUP, "threshold", self.threshold)
+
+
+@dataclass
+class SystematicResamplerConfig(ResamplerConfig):
+    """`resampler=systematic`: one uniform offset, N evenly spaced pointers."""
+
+    _target_: str = "slamlab.slam.resample.SystematicResampler"
+
+
+@dataclass
+class StratifiedResamplerConfig(ResamplerConfig):
+    """`resampler=stratified`: one uniform draw in each of N equal strata."""
+
+    _target_: str = "slamlab.slam.resample.StratifiedResampler"
+
+
+@dataclass
+class MultinomialResamplerConfig(ResamplerConfig):
+    """`resampler=multinomial`: N independent draws from the weights."""
+
+    _target_: str = "slamlab.slam.resample.MultinomialResampler"
+
+
+@dataclass
+class ResidualResamplerConfig(ResamplerConfig):
+    """`resampler=residual`: floor(N w_i) copies, the rest drawn from the residuals."""
+
+    _target_: str = "slamlab.slam.resample.ResidualResampler"
+
+
+# ---- matcher/ ------------------------------------------------------------------------------
+def _check_offset_grid(g: str, xy_half_width_m: float, xy_step_m: float, yaw_half_width_rad: float, yaw_step_rad: float) -> None:
+    require_nonnegative(g, "xy_half_width_m", xy_half_width_m)
+    require_positive(g, "xy_step_m", xy_step_m)
+    require_nonnegative(g, "yaw_half_width_rad", yaw_half_width_rad)
+    require_positive(g, "yaw_step_rad", yaw_step_rad)
+
+
+@dataclass
+class GridMatcherConfig:
+    """`matcher=grid`: the course's map correlation, i.e. the number of scan points on occupied
+    cells over a grid of x/y/yaw offsets."""
+
+    GROUP: ClassVar[str] = "matcher"
+    _target_: str = "slamlab.slam.matcher.GridMatcher"
+    xy_half_width_m: float = 0.2  # x and y offsets from -0.2 to +0.2 m ...
+    xy_step_m: float = 0.05  # ... in 0.05 m steps: a 9 x 9 grid
+    yaw_half_width_rad: float = 0.0  # yaw offsets (0 = no yaw search)
+    yaw_step_rad: float = 0.01
+    move_to_best: bool = True  # move each particle to its best offset
+    beam_step: int = 4  # use every k-th scan point (THOR: 1081 beams; 4 keeps it faster than real time)
+
+    def __post_init__(self) -> None:
+        _check_offset_grid(self.GROUP, self.xy_half_width_m, self.xy_step_m, self.yaw_half_width_rad, self.yaw_step_rad)
+        require_int(self.GROUP, "beam_step", self.beam_step, 1)
+
+
+@dataclass
+class LikelihoodMatcherConfig:
+    """`matcher=likelihood`: score = sum of exp(-d^2 / 2 sigma^2) over scan points, d the
+    distance to the nearest wall; coarse x/y/yaw grid on a beam subsample, then hill climbing
+    with halving steps on all used beams."""
+
+    GROUP: ClassVar[str] = "matcher"
+    _target_: str = "slamlab.slam.matcher.LikelihoodFieldMatcher"
+    sigma_m: float = 0.1  # field width (m); 0.1 beat 0.05 on Intel and ACES (smoother basin)
+    radius_m: float = 0.3  # field cut-off (m)
+    xy_half_width_m: float = 0.1  # coarse grid: x/y offsets -0.1..0.1 m ...
+    xy_step_m: float = 0.05  # ... in 0.05 m steps
+    yaw_half_width_rad: float = 0.1  # coarse grid: yaw offsets -0.1..0.1 rad ...
+    yaw_step_rad: float = 0.025  # ... in 0.025 rad steps
+    coarse_beam_step: int = 3  # coarse grid uses every 3rd point
+    beam_step: int = 1  # hill climb and score use every k-th point
+    refine_levels: int = 4  # hill-climb step halvings
+    prior_sigma_xy_m: float = 0.05  # motion prior: an offset d from the prediction costs 0.5 (d/sigma)^2 (0 = off);
+    prior_sigma_yaw_rad: float = 0.1  # keeps long corridors (ACES) from sliding, leaves room for Intel's poor yaw
+    move_to_best: bool = True
+
+    def __post_init__(self) -> None:
+        g = self.GROUP
+        require_nonnegative(g, "prior_sigma_xy_m", self.prior_sigma_xy_m)
+        require_nonnegative(g, "prior_sigma_yaw_rad", self.prior_sigma_yaw_rad)
+        require_positive(g, "sigma_m", self.sigma_m)
+        require_positive(g, "radius_m", self.radius_m)
+        _check_offset_grid(g, self.xy_half_width_m, self.xy_step_m, self.yaw_half_width_rad, self.yaw_step_rad)
+        require_int(g, "coarse_beam_step", self.coarse_beam_step, 1)
+        require_int(g, "beam_step", self.beam_step, 1)
+        require_int(g, "refine_levels", self.refine_levels, 0)
+
+
+# ---- map/ ----------------------------------------------------------------------------------
+@dataclass
+class MapConfig:
+    """`map=default`: the occupancy grid in log-odds, updated by ray casting.
+
+    This dataclass is also the settings object the grid code reads (`slam.grid.MapSettings`)."""
+
+    GROUP: ClassVar[str] = "map"
+    _target_: str = "slamlab.slam.grid.MapSettings"
+    resolution_m: float = 0.05  # cell size (m)
+    log_odds_occupied: float = 0.85  # added to a beam's end cell (log(0.7/0.3))
+    log_odds_free: float = -0.4  # added to cells a beam crosses (log(0.4/0.6))
+    clamp_min: float = -5.0  # log-odds bounds: small bounds forget moving people quickly
+    clamp_max: float = 5.0
+    occupied_threshold: float = 0.0  # a cell is a wall when its log-odds is above this
+    ground_threshold_m: float = 0.1  # scan points lower than this above the floor hit the ground (dropped)
+    min_range_m: Optional[float] = None  # beams shorter / longer than this are ignored (null = the dataset's)
+    max_range_m: Optional[float] = None
+    initial_size_m: float = 40.0  # side of the square grid at start (m), centred on the start pose
+    growth_margin_m: float = 10.0  # extra room (m) added whenever a scan falls off the grid
+
+    def __post_init__(self) -> None:
+        g = self.GROUP
+        self.resolution_m = require_positive(g, "resolution_m", self.resolution_m)
+        self.log_odds_occupied = require_positive(g, "log_odds_occupied", self.log_odds_occupied)
+        if not (isinstance(self.log_odds_free, (int, float)) and self.log_odds_free < 0):
+            raise ConfigError(f"{g}.log_odds_free", f"must be < 0, got {self.log_odds_free!r}")
+        if not (isinstance(self.clamp_min, (int, float)) and self.clamp_min < 0):
+            raise ConfigError(f"{g}.clamp_min", f"must be < 0, got {self.clamp_min!r}")
+        if not (isinstance(self.clamp_max, (int, float)) and self.clamp_max > 0):
+            raise ConfigError(f"{g}.clamp_max", f"must be > 0, got {self.clamp_max!r}")
+        self.log_odds_free, self.clamp_min, self.clamp_max = float(self.log_odds_free), float(self.clamp_min), float(self.clamp_max)
+        t = self.occupied_threshold
+        if not (isinstance(t, (int, float)) and self.clamp_min <= t < self.clamp_max):
+            raise ConfigError(f"{g}.occupied_threshold", f"must lie in [clamp_min, clamp_max), got {t!r}")
+        self.occupied_threshold = float(t)
+        self.ground_threshold_m = float(self.ground_threshold_m)
+        if self.min_range_m is not None:
+            self.min_range_m = require_nonnegative(g, "min_range_m", self.min_range_m)
+        if self.max_range_m is not None:
+            self.max_range_m = require_positive(g, "max_range_m", self.max_range_m)
+        if self.min_range_m is not None and self.max_range_m is not None and self.min_range_m >= self.max_range_m:
+            raise ConfigError(f"{g}.max_range_m", "must be greater than map.min_range_m")
+        self.initial_size_m = require_positive(g, "initial_size_m", self.initial_size_m)
+        self.growth_margin_m = require_nonnegative(g, "growth_margin_m", self.growth_margin_m)
+
+
+# ---- filter/ -------------------------------------------------------------------------------
+@dataclass
+class CourseFilterConfig:
+    """`filter=course`: every particle matches against ONE shared map, built from the
+    highest-weight particle at each step."""
+
+    GROUP: ClassVar[str] = "filter"
+    _target_: str = "slamlab.slam.filters.SharedMapFilter"
+
+
+@dataclass
+class RbpfFilterConfig:
+    """`filter=rbpf`: Rao-Blackwellised particle filter, a map per particle in copy-on-write
+    tiles of 32 x 32 cells shared between particles until one writes."""
+
+    GROUP: ClassVar[str] = "filter"
+    _target_: str = "slamlab.slam.filters.RaoBlackwellFilter"
+    step_ref_m: Optional[float] = None  # the step the matcher's motion prior is set for (null = off); a shorter
+    step_ref_rad: Optional[float] = None  # step (d / step_ref_m + |a| / step_ref_rad = s < 1) gets a prior s times as narrow
+    # (measured worse on ACES at half steps: left off)
+
+    def __post_init__(self) -> None:
+        if (self.step_ref_m is None) != (self.step_ref_rad is None):
+            raise ConfigError("filter.step_ref_rad", "set step_ref_m and step_ref_rad together (or both null)")
+        if self.step_ref_m is not None:
+            require_positive(self.GROUP, "step_ref_m", self.step_ref_m)
+        if self.step_ref_rad is not None:
+            require_positive(self.GROUP, "step_ref_rad", self.step_ref_rad)
+
+
+__all__ = [
+    "CourseMotionConfig", "Odometry4MotionConfig",
+    "LinearWeightingConfig", "LinearExpWeightingConfig", "LogSumExpWeightingConfig",
+    "ResamplerConfig", "SystematicResamplerConfig", "StratifiedResamplerConfig", "MultinomialResamplerConfig", "ResidualResamplerConfig",
+    "GridMatcherConfig", "LikelihoodMatcherConfig", "MapConfig", "CourseFilterConfig", "RbpfFilterConfig",
+]
