@@ -171,15 +171,20 @@ def static_keys(group_choices: list[str]) -> set[str] | None:
         if base is None:
             return None
         choices: dict[str, str] = {}
+        keys: set[str] = set()
         for entry in base.get("defaults", []):
             if isinstance(entry, dict) and len(entry) == 1:
                 (group, choice), = entry.items()
                 if not group.startswith("override "):
                     choices[group] = choice
+            elif entry == "slamlab_schema":  # the run-level keys' schema (slamlab.config.store)
+                from slamlab.config.run import RunConfig
+
+                keys |= _schema_keys(RunConfig)
             elif entry != "_self_":
                 return None
         cli = dict(c.lstrip("+").split("=", 1) for c in group_choices)
-        keys = set(_dotted_keys({k: v for k, v in base.items() if k not in ("defaults", "hydra")}))
+        keys |= set(_dotted_keys({k: v for k, v in base.items() if k not in ("defaults", "hydra")}))
         preset = cli.pop(PRESET_GROUP, None)
         if preset is not None:
             preset_keys = _preset(root, preset, choices, yaml, depth=0)
@@ -191,13 +196,39 @@ def static_keys(group_choices: list[str]) -> set[str] | None:
             if group == PRESET_GROUP:
                 continue
             data = _read_yaml(root / group / f"{choice}.yaml", yaml)
-            if data is None or "defaults" in data:
+            if data is None:
                 return None
             keys.add(group)
+            if "defaults" in data:  # a file extending its schema: [/schema/<group>/<name>@_here_, _self_]
+                schema = _extended_schema(group, data.pop("defaults"))
+                if schema is None:
+                    return None
+                keys.update(f"{group}.{k}" for k in _schema_keys(schema))
             keys.update(f"{group}.{k}" for k in _dotted_keys(data))
         return keys
     except (OSError, ValueError, TypeError, AttributeError, yaml.YAMLError):
         return None
+
+
+def _extended_schema(group: str, defaults: object) -> type | None:
+    """The schema dataclass a group file extends, when its defaults list is exactly
+    `[/schema/<group>/<name>@_here_, _self_]`; None otherwise (unsure)."""
+    from slamlab.config import SCHEMAS
+
+    if not isinstance(defaults, list) or len(defaults) != 2 or defaults[1] != "_self_":
+        return None
+    entry = defaults[0]
+    prefix, suffix = f"/schema/{group}/", "@_here_"
+    if not (isinstance(entry, str) and entry.startswith(prefix) and entry.endswith(suffix)):
+        return None
+    return SCHEMAS.get(group, {}).get(entry[len(prefix):-len(suffix)])
+
+
+def _schema_keys(schema: type) -> set[str]:
+    """The dotted keys of a schema dataclass, nested dataclasses included."""
+    from omegaconf import OmegaConf
+
+    return set(_dotted_keys(OmegaConf.to_container(OmegaConf.structured(schema), resolve=False)))
 
 
 def _preset(root, name: str, choices: dict[str, str], yaml, depth: int) -> set[str] | None:
