@@ -258,13 +258,13 @@ def test_matchers_count_the_map_cells_they_read():
     start and six neighbours per level and stops; one from off the optimum scores more."""
     g, scan = _box_map()
     m = len(scan.xy)
-    grid = GridMatcher(xy_half_width_m=0.2, xy_step_m=0.05)
+    grid = GridMatcher(xy_half_width_m=0.2, xy_step_m=0.05, beam_step=1)
     grid.match(g, np.zeros((2, 3)), scan)
     assert grid.map_reads == 2 * 81 * m
-    lf = LikelihoodFieldMatcher(xy_half_width_m=0.0, yaw_half_width_rad=0.0, refine_levels=0)
+    lf = LikelihoodFieldMatcher(xy_half_width_m=0.0, yaw_half_width_rad=0.0, refine_levels=0, beam_step=1)
     lf.match(g, np.zeros((3, 3)), scan)
     assert lf.map_reads == 3 * 4 * m  # no coarse grid, no climb: one field value per point
-    climb = LikelihoodFieldMatcher(xy_half_width_m=0.1, xy_step_m=0.05, yaw_half_width_rad=0.0, refine_levels=3, coarse_beam_step=3)
+    climb = LikelihoodFieldMatcher(xy_half_width_m=0.1, xy_step_m=0.05, yaw_half_width_rad=0.0, refine_levels=3, coarse_beam_step=3, beam_step=1)
     climb.match(g, np.array([[0.06, -0.04, 0.02]]), scan)
     coarse = 25 * len(scan.xy[::3])
     fine = climb.map_reads / 4 - coarse

@@ -92,7 +92,9 @@ def check_overrides(argv: list[str]) -> str | None:
         return None
     static = static_keys(group_choices)
     if static is not None and all(key in static for key in keys):
-        return None  # every key is there: no need to compose the config (Hydra does, to run)
+        # every key is there: no need to compose the config (Hydra does, to run); the
+        # values' types are checked against the schemas, which needs no composing either
+        return _type_mistake(group_choices, values_set)
     from hydra import compose, initialize_config_module
     from omegaconf import OmegaConf
 
