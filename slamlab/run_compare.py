@@ -23,8 +23,10 @@ from slamlab.io.rundir import RECORDS, RunFile
 # machine, folder and commit; .hydra/ is the config the re-run was made from (the run
 # directory contract's RECORDS). Log files (`*.log`) are records too.
 NOT_RESULTS = RECORDS
-# Metrics (and step columns) that measure the machine, not the algorithm.
-VOLATILE = re.compile(r"(runtime|_per_s$|realtime|memory|(^|_)ms(_|$)|time_s$)")
+# Metrics (and step columns) that measure the machine or the implementation, not the
+# algorithm's results: timings, memory, and the matcher's map reads (a faster kernel doing
+# the same search reads fewer cells and finds the same poses).
+VOLATILE = re.compile(r"(runtime|_per_s$|realtime|memory|(^|_)ms(_|$)|time_s$|map_reads$)")
 TEXT_SUFFIXES = (".tum", ".yaml", ".txt")
 IMAGE_SUFFIXES = (".png", ".pgm")
 
