@@ -17,7 +17,6 @@ from slamlab.errors import DataError
 from slamlab.eval.relations import match_times, relation_errors
 from slamlab.geometry import se2_between
 
-CONF_DIR = Path(__file__).resolve().parents[1] / "slamlab" / "conf"
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -272,9 +271,14 @@ def test_relations_beside_log_and_override(tmp_path):
 def test_hydra_config_instantiates_the_loader(tmp_path):
     from hydra.utils import instantiate
 
-    cfg = OmegaConf.load(CONF_DIR / "dataset" / "carmen.yaml")
-    assert OmegaConf.is_missing(cfg, "path")
+    from hydra import compose, initialize_config_module
+
+    # the shipped dataset=carmen (its YAML extends slamlab.config.datasets.CarmenDatasetConfig)
+    with initialize_config_module(config_module="slamlab.conf", version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["dataset=carmen"]).dataset
+    assert OmegaConf.is_missing(cfg, "path") and cfg.cache is True and cfg.on_bad_line == "error"
     cfg.path = str(write(tmp_path / "small.clf", SMALL_LOG))
+    cfg.cache = False
     seq = instantiate(cfg)
     assert len(seq) == 3 and seq.name == "small"
 

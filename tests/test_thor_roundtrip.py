@@ -269,7 +269,11 @@ def test_hydra_config_instantiates(tmp_path: Path) -> None:
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
-    cfg = OmegaConf.load(Path(__file__).resolve().parents[1] / "slamlab" / "conf" / "dataset" / "thor.yaml")
+    from hydra import compose, initialize_config_module
+
+    # the shipped dataset=thor (its YAML extends slamlab.config.datasets.ThorDatasetConfig)
+    with initialize_config_module(config_module="slamlab.conf", version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["dataset=thor"]).dataset
     assert OmegaConf.is_missing(cfg, "root")  # users must say where their logs are
     make_log(tmp_path, seq=2)
     cfg.root = str(tmp_path)

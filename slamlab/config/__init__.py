@@ -18,6 +18,7 @@ import dataclasses
 import importlib
 from typing import Any, TypeVar
 
+from slamlab.config.datasets import CarmenDatasetConfig, RosbagDatasetConfig, ThorDatasetConfig
 from slamlab.config.run import RecordConfig, RunConfig, StepsConfig
 from slamlab.config.sim import SimDatasetConfig, SimParams
 from slamlab.config.slam import (
@@ -51,7 +52,7 @@ SCHEMAS: dict[str, dict[str, type]] = {
     "filter": {"course": CourseFilterConfig, "rbpf": RbpfFilterConfig},
     "ground": {"threshold": ThresholdGroundConfig, "plane": PlaneGroundConfig, "image_plane": ImagePlaneGroundConfig},
     "texture": {"default": TextureConfig},
-    "dataset": {"sim": SimDatasetConfig},
+    "dataset": {"sim": SimDatasetConfig, "carmen": CarmenDatasetConfig, "thor": ThorDatasetConfig, "rosbag": RosbagDatasetConfig},
 }
 
 

@@ -49,6 +49,7 @@ from slamlab.errors import DataError
 from slamlab.frames import ScanFrame, Sequence
 from slamlab.geometry import rot_z, se2_between, trans, wrap_angle
 from slamlab.io.compressed import read_text
+from slamlab.config.datasets import CarmenDatasetConfig
 
 _FLASER_TAIL = (
     "x", "y", "theta", "odom_x", "odom_y", "odom_theta",
@@ -403,8 +404,8 @@ def load_carmen(
     max_range_m: float | None = None,
     name: str | None = None,
     relations_time_tol_s: float = DEFAULT_RELATIONS_TOL_S,
-    on_bad_line: str = "error",
-    cache: bool = False,
+    on_bad_line: str = CarmenDatasetConfig.on_bad_line,
+    cache: bool = False,  # off for direct calls (tests read the parser); dataset=carmen turns it on
 ) -> Sequence:
     """Load a CARMEN log (`.clf`, `.clf.gz`, `.clf.bz2`, `.clf.xz`) as a `Sequence`.
 

@@ -13,10 +13,11 @@ from slamlab.datasets.stamps import nearest_pair
 from slamlab.errors import ConfigError, DataError
 from slamlab.frames import Relations
 from slamlab.io.compressed import read_text
+from slamlab.config.datasets import RELATIONS_TIME_TOL_S
 
 # Matching a relations file to a log (`dataset.relations_time_tol_s`): some published files
 # round their stamps to 10 us, so a stamp is matched to the nearest scan within this (s).
-DEFAULT_RELATIONS_TOL_S = 1e-4
+DEFAULT_RELATIONS_TOL_S = RELATIONS_TIME_TOL_S  # one source: the dataset schemas (slamlab.config.datasets)
 _RELATION_FIELDS = ("t1", "t2", "x", "y", "z", "roll", "pitch", "yaw")
 
 

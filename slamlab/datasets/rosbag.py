@@ -41,6 +41,7 @@ from slamlab.datasets.relations import DEFAULT_RELATIONS_TOL_S, relations_for_lo
 from slamlab.errors import ConfigError, DataError
 from slamlab.frames import ScanFrame, Sequence
 from slamlab.geometry import FloatArray, rot_z, trans, wrap_angle
+from slamlab.config.datasets import RosbagDatasetConfig
 
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -321,9 +322,9 @@ def load_rosbag(
     odom_topic: str | None = None,
     relations: str | Path | None = None,
     base_frame: str | None = None,
-    odom_frame: str = "odom",
+    odom_frame: str = RosbagDatasetConfig.odom_frame,
     laser_pose: list[float] | None = None,
-    max_time_back_s: float = 2.0,
+    max_time_back_s: float = RosbagDatasetConfig.max_time_back_s,
     name: str | None = None,
     relations_time_tol_s: float = DEFAULT_RELATIONS_TOL_S,
 ) -> Sequence:

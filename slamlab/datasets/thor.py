@@ -36,6 +36,7 @@ from slamlab.datasets.stamps import nearest_index
 from slamlab.errors import DataError
 from slamlab.frames import KinectCalibration, ScanFrame, Sequence
 from slamlab.geometry import wrap_angle
+from slamlab.config.datasets import ThorDatasetConfig
 
 __all__ = ["load_thor", "read_lidar_mat", "read_joint_mat", "beam_angles", "LidarLog", "JointLog"]
 
@@ -281,7 +282,7 @@ def _resolve(root: Path, name: str | None, default: str) -> Path:
 
 def load_thor(
     root: str | Path,
-    sequence: int = 0,
+    sequence: int = ThorDatasetConfig.sequence,
     calibration_dir: str | Path | None = None,
     lidar_file: str | None = None,
     joint_file: str | None = None,
