@@ -344,3 +344,14 @@ def test_grid_matcher_by_whole_cell_shifts_counts_what_every_offset_counts(yaw_h
     grid_search_shifts(lo, np.float32(0.0), ox, oy, 1.0 / res, poses, pts, offsets, shifts, by_yaw, yaws, b_p, b_s)
     assert np.array_equal(a_p, b_p) and np.array_equal(a_s, b_s)
     assert len(np.unique(a_s)) > 3  # the scores differ between particles: a real search
+    # particles run on all cores: one thread gives the same bytes
+    import numba
+
+    c_p, c_s = np.empty_like(poses), np.empty(len(poses))
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        grid_search_shifts(lo, np.float32(0.0), ox, oy, 1.0 / res, poses, pts, offsets, shifts, by_yaw, yaws, c_p, c_s)
+    finally:
+        numba.set_num_threads(before)
+    assert np.array_equal(c_p, b_p) and np.array_equal(c_s, b_s)
