@@ -1,6 +1,7 @@
 """Scan-to-map matching: score each particle's scan against the map over pose offsets.
 
-Two matchers (numba kernels, serial loops so results are bit-for-bit reproducible):
+Two matchers (numba kernels; particles run on all cores, each particle's result depends only on
+its own inputs, so results are bit for bit the same whatever the thread count):
 - `GridMatcher` (the course): correlation = number of scan points landing on occupied
   cells, evaluated on a fixed grid of x/y/yaw offsets around each particle.
 - `LikelihoodFieldMatcher`: score = sum over points of a likelihood field
@@ -75,11 +76,11 @@ def score_field(field, ox, oy, inv_res, x, y, th, pts):
     return total
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def grid_search_hits(lo, thresh, ox, oy, inv_res, poses, pts, offsets, out_poses, out_scores):
     """For each particle, the offset (K, 3: dx m, dy m, dyaw rad, world axes) with the most
     hits; ties go to the earlier offset (offsets are sorted smallest first)."""
-    for i in range(poses.shape[0]):
+    for i in numba.prange(poses.shape[0]):
         best = -1.0
         bk = 0
         for k in range(offsets.shape[0]):
@@ -159,7 +160,7 @@ def grid_search_shifts(lo, thresh, ox, oy, inv_res, poses, pts, offsets, shifts,
         out_scores[i] = best
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals):
     """Coarse grid over `offsets` with `coarse_pts`, then hill climbing with `fine_pts`:
     try +-lin_step in x, y and +-ang_step in yaw, take the best improving move, repeat; when
@@ -167,7 +168,7 @@ def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, l
     prior `kxy * |dxy|^2 + kyaw * dyaw^2` (offset from the predicted pose), so flat
     directions (corridors) do not random-walk. Writes best poses, their fine scores and the
     number of fine scores computed (`out_evals`, for the map-read count)."""
-    for i in range(poses.shape[0]):
+    for i in numba.prange(poses.shape[0]):  # particles on all cores; each result is its own
         px = poses[i, 0]
         py = poses[i, 1]
         pt = poses[i, 2]
