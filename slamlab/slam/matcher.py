@@ -288,6 +288,14 @@ class Matcher(ABC):
         ignore it. A matcher that only implements `match` works with filter=course only."""
         raise ConfigError("filter", f"{type(self).__name__} does not support filter=rbpf (no match_each)")
 
+    def _cell_shifts(self, res_m: float) -> tuple[np.ndarray, np.ndarray, FloatArray]:
+        """`cell_shifts(self.offsets, res_m)`, computed once per map resolution (it depends on
+        nothing else, and `match` runs at every step)."""
+        cache = self.__dict__.setdefault("_shifts_by_res", {})
+        if res_m not in cache:
+            cache[res_m] = cell_shifts(self.offsets, res_m)
+        return cache[res_m]
+
     def _finish(self, poses: FloatArray, best: FloatArray, scores: FloatArray) -> tuple[FloatArray, FloatArray]:
         if not self.move_to_best:
             return poses, scores
@@ -323,7 +331,7 @@ class GridMatcher(Matcher):
         scores = np.empty(len(poses))
         args = (grid.log_odds, np.float32(grid.s.occupied_threshold), grid.origin[0], grid.origin[1], 1.0 / grid.res,
                 np.ascontiguousarray(poses), pts, self.offsets)
-        shifts, by_yaw, yaws = cell_shifts(self.offsets, grid.res)
+        shifts, by_yaw, yaws = self._cell_shifts(grid.res)
         if len(shifts):  # whole-cell offsets (the course's 5 cm grid on a 5 cm map)
             grid_search_shifts(*args, shifts, by_yaw, yaws, best, scores)
         else:
@@ -406,7 +414,7 @@ class LikelihoodFieldMatcher(Matcher):
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
         evals = np.empty(len(poses), dtype=np.int64)
-        shifts, by_yaw, yaws = cell_shifts(self.offsets, maps.res)
+        shifts, by_yaw, yaws = self._cell_shifts(maps.res)
         tiled_field_search(
             maps.pool_f, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, np.ascontiguousarray(poses), coarse, fine,
             self.offsets, shifts, by_yaw, yaws, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
