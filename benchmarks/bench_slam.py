@@ -60,7 +60,6 @@ def bench_carmen(name: str) -> dict | None:
     if log is None or not log.exists():
         print(f"# {name}: log not found (set SLAMLAB_DATA_DIR)", file=sys.stderr)
         return None
-    from slamlab.datasets.carmen import load_carmen
     from slamlab.eval.relations import relation_errors
 
     cfg = _compose([f"+experiment={name}", f"dataset.path={log}"])

@@ -16,7 +16,7 @@ import pytest
 
 from slamlab.config import SCHEMAS
 from slamlab.config.texture import ThresholdGroundConfig
-from slamlab.datasets.sim.calib import default_calibration, sim_calibration
+from slamlab.datasets.sim.calib import sim_calibration
 from slamlab.datasets.sim.kinect import camera_rays, render_depth
 from slamlab.errors import ConfigError
 from slamlab.geometry import body_to_world
