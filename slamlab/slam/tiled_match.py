@@ -173,12 +173,16 @@ def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offse
     ls = lin_step
     as_ = ang_step
     for _ in range(levels):
+        came = -1  # the move back to the last pose: its score is known (lower), skip it
         for _it in range(16):  # bounded: a climb never runs away on a flat score
             mx = bx
             my = by
             mt = bt
             ms = cur
+            mm = -1
             for m in range(6):
+                if m == came:
+                    continue
                 cx = bx
                 cy = by
                 ct = bt
@@ -202,7 +206,9 @@ def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offse
                     mx = cx
                     my = cy
                     mt = ct
+                    mm = m
             if ms > cur:
+                came = mm ^ 1  # 0<->1 (x), 2<->3 (y), 4<->5 (yaw)
                 bx = mx
                 by = my
                 bt = mt
