@@ -274,31 +274,37 @@ def count_fresh_tiles(table, ref, which, poses, pts, origin, ox, oy, inv_res, ou
         s = math.sin(poses[i, 2])
         sx = x + c * origin[0] - s * origin[1]
         sy = y + s * origin[0] + c * origin[1]
-        n = 0
+        # 1. list the tiles the beams' samples fall in, each once (mark 1) ...
+        listed = np.empty(TH * TW, dtype=np.int32)  # tile row * TW + tile column
+        nl = 0
         for k in range(pts.shape[0]):
             ex = x + c * pts[k, 0] - s * pts[k, 1]
             ey = y + s * pts[k, 0] + c * pts[k, 1]
             length = math.sqrt((ex - sx) ** 2 + (ey - sy) ** 2)
             steps = int(math.ceil(length / half))
-            last_tr = -1
-            last_tc = -1
             for q in range(steps + 1):
                 f = q / steps if steps > 0 else 0.0
                 px = sx + f * (ex - sx)
                 py = sy + f * (ey - sy)
-                tr = int(math.floor((py - oy) * inv_res)) >> TILE_SHIFT
-                tc = int(math.floor((px - ox) * inv_res)) >> TILE_SHIFT
-                if tr == last_tr and tc == last_tc:
-                    continue
-                last_tr = tr
-                last_tc = tc
-                for a in range(max(tr - 1, 0), min(tr + 2, TH)):
-                    for b in range(max(tc - 1, 0), min(tc + 2, TW)):
-                        if mark[a, b] == 0:
-                            mark[a, b] = 1
-                            t = table[i, a, b]
-                            if t == EMPTY or ref[t] != 1:
-                                n += 1
+                tr = min(max(int(math.floor((py - oy) * inv_res)) >> TILE_SHIFT, 0), TH - 1)
+                tc = min(max(int(math.floor((px - ox) * inv_res)) >> TILE_SHIFT, 0), TW - 1)
+                if mark[tr, tc] == 0:
+                    mark[tr, tc] = 1
+                    listed[nl] = tr * TW + tc
+                    nl += 1
+        # ... 2. then count each tile of their 3 x 3 blocks once (mark 2) that p does not own
+        # alone: one mark read per sample and nine per listed tile, not nine per sample
+        n = 0
+        for h in range(nl):
+            tr = listed[h] // TW
+            tc = listed[h] % TW
+            for a in range(max(tr - 1, 0), min(tr + 2, TH)):
+                for b in range(max(tc - 1, 0), min(tc + 2, TW)):
+                    if mark[a, b] != 2:
+                        mark[a, b] = 2
+                        t = table[i, a, b]
+                        if t == EMPTY or ref[t] != 1:
+                            n += 1
         out[j] = n
 
 
