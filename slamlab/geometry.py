@@ -43,6 +43,17 @@ def se2_between(a: ArrayLike, b: ArrayLike) -> FloatArray:
     return se2_compose(se2_inverse(a), b)
 
 
+def weighted_mean_pose(poses: ArrayLike, weights: ArrayLike) -> FloatArray:
+    """The weighted mean of SE(2) poses (N, 3) (x m, y m, theta rad): x and y averaged, theta
+    the circular mean (the angle of the weighted sum of unit vectors). `weights` (N,) need
+    not be normalised."""
+    p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    w = w / w.sum()
+    theta = np.arctan2(w @ np.sin(p[:, 2]), w @ np.cos(p[:, 2]))
+    return np.array([w @ p[:, 0], w @ p[:, 1], theta])
+
+
 def se2_to_matrix(a: ArrayLike) -> FloatArray:
     """(3,) pose to a 3x3 homogeneous matrix."""
     x, y, th = np.asarray(a, dtype=np.float64)

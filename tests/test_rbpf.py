@@ -149,6 +149,8 @@ def test_rbpf_step_scale_narrows_the_prior_for_short_steps_only():
         RbpfFilterConfig(step_ref_m=0.2)
     with pytest.raises(ConfigError, match="filter.step_ref_m"):
         RbpfFilterConfig(step_ref_m=-1.0, step_ref_rad=0.2)
+    with pytest.raises(ConfigError, match="filter.online.*best or mean"):
+        RbpfFilterConfig(online="median")
 
 
 @pytest.mark.slow
@@ -160,3 +162,26 @@ def test_rbpf_short_steps_keep_the_robot_closer_to_odometry():
     tight = run_slam(seq, build_components(_cfg("filter=rbpf", "particles=10", "matcher=likelihood", "filter.step_ref_m=3.0", "filter.step_ref_rad=30.0")))
     dev = lambda r: np.abs(r.trajectory[:, :2] - r.odometry[:, :2]).max()  # noqa: E731
     assert dev(tight) < dev(free)
+
+
+def test_rbpf_online_estimate_is_the_best_particle_or_the_weighted_mean():
+    """`filter.online`: the causal pose at each processed step is the highest-weight particle
+    (best) or the weighted mean of the particles (mean), recomputed here from the recorded
+    particles; the two differ once the particles spread."""
+    from slamlab.geometry import weighted_mean_pose
+
+    seq = _room_sequence()
+    out = {}
+    for online in ("best", "mean"):
+        cfg = _cfg("filter=rbpf", f"filter.online={online}", "particles=15", "matcher=likelihood", "seed=3",
+                   "weighting.temperature=50", "record.particles=true")
+        res = run_slam(seq, build_components(cfg))
+        h, steps = res.particle_history, res.extras["step_scans"]
+        for k, si in enumerate(steps):
+            want = h.poses[k, int(np.argmax(h.weights[k]))] if online == "best" else weighted_mean_pose(h.poses[k], h.weights[k])
+            np.testing.assert_allclose(res.causal[si], want, rtol=0, atol=1e-12)  # (+) a zero odometry step
+        out[online] = res
+    # the same particles (the estimate does not feed back into the filter) ...
+    assert out["best"].trajectory.tobytes() == out["mean"].trajectory.tobytes()
+    # ... and a different online path
+    assert not np.array_equal(out["best"].causal, out["mean"].causal)

@@ -26,3 +26,18 @@ def test_wrap_angle_range():
     w = wrap_angle(np.array([np.pi, -np.pi, 3 * np.pi, 7.0]))
     assert np.all(w >= -np.pi) and np.all(w < np.pi)
     np.testing.assert_allclose(w[2], -np.pi)
+
+
+def test_weighted_mean_pose_averages_position_and_yaw_across_the_wrap():
+    from slamlab.geometry import weighted_mean_pose
+
+    poses = np.array([[1.0, 2.0, np.pi - 0.1], [3.0, 4.0, -np.pi + 0.1]])
+    m = weighted_mean_pose(poses, [1.0, 1.0])  # weights need not sum to 1
+    np.testing.assert_allclose(m[:2], [2.0, 3.0])
+    # the two yaws are 0.2 rad apart across +-pi: their mean is pi, not 0
+    assert abs(abs(m[2]) - np.pi) < 1e-12
+    m = weighted_mean_pose(poses, [3.0, 1.0])
+    np.testing.assert_allclose(m[:2], [1.5, 2.5])
+    assert abs(wrap_angle(m[2] - (np.pi - 0.05))) < 1e-3
+    # one particle with all the weight is that particle
+    np.testing.assert_allclose(weighted_mean_pose(poses, [0.0, 1.0]), poses[1])

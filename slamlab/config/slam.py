@@ -264,8 +264,11 @@ class RbpfFilterConfig:
     step_ref_m: Optional[float] = None  # the step the matcher's motion prior is set for (null = off); a shorter
     step_ref_rad: Optional[float] = None  # step (d / step_ref_m + |a| / step_ref_rad = s < 1) gets a prior s times as narrow
     # (measured worse on ACES at half steps: left off)
+    online: str = "best"  # the online (causal) pose: best (highest-weight particle) or mean (weighted mean)
 
     def __post_init__(self) -> None:
+        if self.online not in ("best", "mean"):
+            raise ConfigError("filter.online", f"must be best or mean, got {self.online!r}")
         if (self.step_ref_m is None) != (self.step_ref_rad is None):
             raise ConfigError("filter.step_ref_rad", "set step_ref_m and step_ref_rad together (or both null)")
         if self.step_ref_m is not None:

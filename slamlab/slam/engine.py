@@ -16,7 +16,8 @@ Per processed step (see `steps.select_steps`):
 4. resample (`resampler/`) when N_eff = 1 / sum(w^2) < threshold * N (under `rbpf` the
    children share their parent's map tiles until they write).
 Each particle's pose per step and its parent index are kept, so the final best particle's
-own path (its ancestry) is the smoothed trajectory. `mode: odometry` skips 1, 2 and 4:
+own path (its ancestry) is the smoothed trajectory; the online (causal) estimate is, at each
+step, the best particle or the particles' weighted mean (`filter.online`). `mode: odometry` skips 1, 2 and 4:
 the map is built along the raw odometry (dead reckoning, for comparison). `mode: predict`
 does 1 with noise for all N particles and skips 2 and 4 (weights stay uniform, nothing is
 resampled): the prediction step of the course's preparation ladder; the map and the
@@ -41,7 +42,7 @@ import numpy as np
 
 from slamlab.errors import ConfigError
 from slamlab.frames import Sequence
-from slamlab.geometry import FloatArray, se2_between, se2_compose
+from slamlab.geometry import FloatArray, se2_between, se2_compose, weighted_mean_pose
 from slamlab.slam.filters import FilterKind
 from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import Matcher
@@ -158,7 +159,7 @@ def run_slam(
         best = int(np.argmax(w))
         hist_poses[k] = poses
         hist_parent[k] = parent
-        causal[k] = poses[best]
+        causal[k] = weighted_mean_pose(poses, w) if c.filter.online == "mean" else poses[best]
         if hist_w is not None:
             hist_w[k] = w
         if k == 0:  # the first map is this scan alone, seen from the start pose

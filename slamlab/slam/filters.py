@@ -138,6 +138,9 @@ class FilterKind(ABC):
     """A `filter/` choice: builds the particles' maps for a run."""
 
     name: str = ""
+    # the online (causal) pose at each step: "best" = the highest-weight particle, "mean" =
+    # the weighted mean of all particles (`geometry.weighted_mean_pose`)
+    online: str = "best"
 
     def step_scale(self, increment: FloatArray) -> float:
         """The step in reference steps, at most 1 (1 = the prior as configured): see
@@ -173,7 +176,8 @@ class RaoBlackwellFilter(FilterKind):
     name = "rbpf"
 
     # defaults and checks: `slamlab.config.slam.RbpfFilterConfig` (both null = off)
-    def __init__(self, step_ref_m: float | None = None, step_ref_rad: float | None = None) -> None:
+    def __init__(self, step_ref_m: float | None = None, step_ref_rad: float | None = None, online: str = "best") -> None:
+        self.online = online
         self.step_ref_m = None if step_ref_m is None else float(step_ref_m)
         self.step_ref_rad = None if step_ref_rad is None else float(step_ref_rad)
 

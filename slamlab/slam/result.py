@@ -43,7 +43,8 @@ class SlamResult:
     - `trajectory` (N, 3): the final best particle's own path through its ancestry
       (smoothed), scans between processed steps filled by that particle's pose composed
       with the odometry since (`fill` names the method).
-    - `causal` (N, 3): the online estimate, the best particle at each step, filled the same way.
+    - `causal` (N, 3): the online estimate (`filter.online`: the best particle, or the
+      particles' weighted mean, at each step), filled the same way.
     - `odometry` (N, 3): the raw odometry poses, shifted to start at the first estimate.
     - `log_odds`: the final occupancy map in log-odds (float32 GridImage).
     - `steps`: one row per processed step with columns
