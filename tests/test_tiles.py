@@ -224,3 +224,25 @@ def test_coarse_search_by_whole_cell_shifts_picks_what_placing_every_offset_pick
     np.testing.assert_allclose(out["cells"][0], out["every"][0], rtol=0, atol=1e-12)
     np.testing.assert_allclose(out["cells"][1], out["every"][1], rtol=1e-12)
     assert not np.allclose(out["cells"][0], poses)  # the search did move the particles
+
+
+def test_reference_counts_after_inserts_equal_a_full_recount():
+    """`insert_scan` updates the tile counts and the free list from the tiles each particle
+    took and let go of; after any mix of inserts (all particles, some, one) and resamples
+    they equal a recount of every table entry, and no tile is both free and in use."""
+    rng = np.random.default_rng(5)
+    n = 6
+    maps = TiledMaps(SETTINGS, n, field_sigma_m=0.1, field_radius_m=0.3, initial_tiles=4)
+    poses = np.zeros((n, 3))
+    for k in range(12):
+        pts, origin = _scan(rng)
+        poses = poses + rng.normal(0, 0.05, poses.shape)
+        which = [None, np.array([k % n]), np.array([0, 2, 4])][k % 3]
+        maps.insert_scan(poses, pts, origin, which=which)
+        want = np.bincount(maps.table.ravel(), minlength=len(maps.ref))
+        want[EMPTY] = 0
+        assert np.array_equal(maps.ref, want)
+        assert sorted(maps.free.tolist()) == (np.flatnonzero(want[1:] == 0) + 1).tolist()
+        if k % 4 == 3:  # children share their parents' tiles, then write into some of them
+            maps.resample(rng.integers(0, n, n))
+    assert maps.tiles_in_use == len(np.unique(maps.table[maps.table != EMPTY]))

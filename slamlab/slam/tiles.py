@@ -48,19 +48,21 @@ EMPTY = 0  # pool index of the shared all-zero tile
 
 
 @numba.njit(cache=True, inline="always")
-def _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, used):
+def _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, rel, used):
     """Pool index of particle p's tile (tr, tc), made private to p (copied on write).
 
     A tile is p's own when `ref[t] == 1`; otherwise p takes the next tile of its own slice
     `free` of the free list (`used[0]` of them taken so far; the caller hands out enough) and
-    copies the old tile into it. References of the old tile are recounted by the caller
-    after the batch, so particles updated in parallel never write the same counter."""
+    copies the old tile into it, noting the old tile in `rel` at the same position. The old
+    tiles' counts drop in the caller after the batch (`TiledMaps._release`), so particles
+    updated in parallel never write the same counter."""
     t = table[p, tr, tc]
     if t != EMPTY and ref[t] == 1:
         return t
     if used[0] >= free.shape[0]:
         raise RuntimeError("tile budget of count_fresh_tiles exceeded (a bug)")
     nt = free[used[0]]
+    rel[used[0]] = t  # the tile p let go of (EMPTY for a new one): its count drops after the batch
     used[0] += 1
     pool_lo[nt, :, :] = pool_lo[t, :, :]
     if has_field:
@@ -71,7 +73,7 @@ def _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, used):
 
 
 @numba.njit(cache=True)
-def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, used,
+def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, rel, used,
                   r0, c0, rows, cols, l_occ, l_free, lmin, lmax, thresh, flips):
     """Ray-cast one scan into particle p's map: cells strictly before each end get `l_free`,
     end cells `l_occ` (all free updates first, as `raycast.raycast_update`), clamped to
@@ -96,7 +98,7 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, used,
             tr = r >> TILE_SHIFT
             tc = c >> TILE_SHIFT
             if tr != last_tr or tc != last_tc:
-                t = _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, used)
+                t = _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, rel, used)
                 last_tr = tr
                 last_tc = tc
             ir = r & TILE_MASK
@@ -121,7 +123,7 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, used,
     for k in range(rows.shape[0]):
         r = rows[k]
         c = cols[k]
-        t = _writable(table, p, r >> TILE_SHIFT, c >> TILE_SHIFT, pool_lo, pool_f, has_field, ref, free, used)
+        t = _writable(table, p, r >> TILE_SHIFT, c >> TILE_SHIFT, pool_lo, pool_f, has_field, ref, free, rel, used)
         ir = r & TILE_MASK
         ic = c & TILE_MASK
         old = pool_lo[t, ir, ic]
@@ -138,7 +140,7 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, used,
 
 
 @numba.njit(cache=True)
-def _splat(table, p, pool_lo, pool_f, ref, free, used, kernel, r, c, b0, b1, d0, d1):
+def _splat(table, p, pool_lo, pool_f, ref, free, rel, used, kernel, r, c, b0, b1, d0, d1):
     """Raise particle p's field to the kernel centred on cell (r, c), within rows [b0, b1)
     and cols [d0, d1). Tile by tile, so the copy-on-write check runs once per tile."""
     R = kernel.shape[0] // 2
@@ -165,7 +167,7 @@ def _splat(table, p, pool_lo, pool_f, ref, free, used, kernel, r, c, b0, b1, d0,
                     break
             if not raise_needed:
                 continue
-            t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, used)
+            t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, rel, used)
             for rr in range(ra, rb):
                 for cc in range(ca, cb):
                     v = kernel[rr - r + R, cc - c + R]
@@ -174,7 +176,7 @@ def _splat(table, p, pool_lo, pool_f, ref, free, used, kernel, r, c, b0, b1, d0,
 
 
 @numba.njit(cache=True)
-def _recompute(table, p, pool_lo, pool_f, ref, free, used, thresh, kernel, b0, b1, d0, d1):
+def _recompute(table, p, pool_lo, pool_f, ref, free, rel, used, thresh, kernel, b0, b1, d0, d1):
     """Recompute particle p's field in rows [b0, b1), cols [d0, d1) from the occupied cells
     within the kernel radius of that box. Only cells whose value changes are written, so
     tiles are copied only where the field really moved (near the freed cells)."""
@@ -201,12 +203,12 @@ def _recompute(table, p, pool_lo, pool_f, ref, free, used, thresh, kernel, b0, b
                 for cc in range(ca, cb):
                     v = new[rr - b0, cc - d0]
                     if v != pool_f[t, rr & TILE_MASK, cc & TILE_MASK]:
-                        t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, used)
+                        t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, rel, used)
                         pool_f[t, rr & TILE_MASK, cc & TILE_MASK] = v
 
 
 @numba.njit(cache=True)
-def tiled_field_update(table, p, pool_lo, pool_f, ref, free, used, thresh, kernel, flips, nflip):
+def tiled_field_update(table, p, pool_lo, pool_f, ref, free, rel, used, thresh, kernel, flips, nflip):
     """Bring particle p's likelihood field up to date after `tiled_raycast` changed the
     occupancy of the cells in `flips[:nflip]`. Around cells that became free the field is
     recomputed (neighbouring ones in one box) from the occupied cells within the kernel
@@ -234,7 +236,7 @@ def tiled_field_update(table, p, pool_lo, pool_f, ref, free, used, thresh, kerne
                 d1 = max(d1, min(c + R + 1, W))
                 continue
         if have:
-            _recompute(table, p, pool_lo, pool_f, ref, free, used, thresh, kernel, b0, b1, d0, d1)
+            _recompute(table, p, pool_lo, pool_f, ref, free, rel, used, thresh, kernel, b0, b1, d0, d1)
             have = False
         if f < nflip:
             b0 = max(r - R, 0)
@@ -249,7 +251,7 @@ def tiled_field_update(table, p, pool_lo, pool_f, ref, free, used, thresh, kerne
         c = flips[f, 1]
         # a cell may have flipped down and up in the same scan: only occupied ones raise
         if pool_lo[table[p, r >> TILE_SHIFT, c >> TILE_SHIFT], r & TILE_MASK, c & TILE_MASK] > thresh:
-            _splat(table, p, pool_lo, pool_f, ref, free, used, kernel, r, c, 0, H, 0, W)
+            _splat(table, p, pool_lo, pool_f, ref, free, rel, used, kernel, r, c, 0, H, 0, W)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -309,12 +311,13 @@ def count_fresh_tiles(table, ref, which, poses, pts, origin, ox, oy, inv_res, ou
 
 
 @numba.njit(cache=True, parallel=True)
-def insert_scans(table, pool_lo, pool_f, has_field, ref, free, starts, used, which, poses, pts, origin,
+def insert_scans(table, pool_lo, pool_f, has_field, ref, free, released, starts, used, which, poses, pts, origin,
                  ox, oy, inv_res, l_occ, l_free, lmin, lmax, thresh, kernel, rows, cols, flips):
     """Ray-cast one scan (`pts` (M, 2) and lidar `origin` (2,), body-yaw frame, m) into the
     maps of particles `which`, each from its own pose `poses[i]`, and update their fields.
     Particles run in parallel; particle j of `which` takes fresh tiles only from its slice
-    `free[starts[j]:starts[j + 1]]` and counts them in `used[j]`. `rows`, `cols` (len(which), M) and `flips`
+    `free[starts[j]:starts[j + 1]]`, counts them in `used[j]` and notes the tiles they replace
+    at the same positions of `released`. `rows`, `cols` (len(which), M) and `flips`
     (len(which), K, 3) are scratch space."""
     for j in numba.prange(which.shape[0]):
         i = which[j]
@@ -332,10 +335,11 @@ def insert_scans(table, pool_lo, pool_f, has_field, ref, free, starts, used, whi
         sc = int(math.floor((sx - ox) * inv_res))
         sr = int(math.floor((sy - oy) * inv_res))
         mine = free[starts[j]:starts[j + 1]]
-        nflip = tiled_raycast(table, i, pool_lo, pool_f, has_field, ref, mine, used[j:j + 1],
+        mine_rel = released[starts[j]:starts[j + 1]]
+        nflip = tiled_raycast(table, i, pool_lo, pool_f, has_field, ref, mine, mine_rel, used[j:j + 1],
                               sr, sc, rows[j], cols[j], l_occ, l_free, lmin, lmax, thresh, flips[j])
         if has_field and nflip > 0:
-            tiled_field_update(table, i, pool_lo, pool_f, ref, mine, used[j:j + 1], thresh, kernel, flips[j], nflip)
+            tiled_field_update(table, i, pool_lo, pool_f, ref, mine, mine_rel, used[j:j + 1], thresh, kernel, flips[j], nflip)
 
 
 def _grown(pool: np.ndarray, capacity: int, keep: np.ndarray) -> np.ndarray:
@@ -460,13 +464,14 @@ class TiledMaps:
         starts = np.concatenate([[0], np.cumsum(need)]).astype(np.int64)
         self._reserve(int(starts[-1]))
         used = np.zeros(len(which), dtype=np.int64)
+        released = np.empty(len(self.free), dtype=np.int32)
         # each cell flips at most once down (free pass) and once up (hit pass); a beam walks
         # at most its length in cells + 2 (rounding at both ends)
         n_flips = int(np.ceil(np.sqrt(((pts - origin) ** 2).sum(axis=1)) / self.res).sum()) + 3 * len(pts)
         rows, cols, flips = self._scratch(len(which), len(pts), n_flips)
         s = self.s
         insert_scans(
-            self.table, self.pool_lo, self.pool_f, self.has_field, self.ref, self.free, starts, used, which, poses, pts, origin,
+            self.table, self.pool_lo, self.pool_f, self.has_field, self.ref, self.free, released, starts, used, which, poses, pts, origin,
             x0, y0, inv,
             np.float32(s.log_odds_occupied), np.float32(s.log_odds_free), np.float32(s.clamp_min),
             np.float32(s.clamp_max), np.float32(s.occupied_threshold), self.kernel, rows, cols, flips,
@@ -474,7 +479,18 @@ class TiledMaps:
         # peak: before the recount frees the tiles the copies replaced, both are held
         self.peak_tiles = max(self.peak_tiles, self.tiles_in_use + int(used.sum()))
         self.tiles_taken += int(used.sum())
-        self._recount()
+        self._release(starts, used, released)
+
+    def _release(self, starts: np.ndarray, used: np.ndarray, released: np.ndarray) -> None:
+        """After `insert_scans`: the fresh tiles taken leave the free list, and the tiles they
+        replaced lose one reference each (returning to the free list at zero). The same counts
+        a full `_recount` over the tables gives, without reading the tables."""
+        pos = np.repeat(starts[:-1], used) + (np.arange(int(used.sum())) - np.repeat(np.cumsum(used) - used, used))
+        gone = released[pos]
+        gone = gone[gone != EMPTY]
+        np.subtract.at(self.ref, gone, 1)
+        freed = np.unique(gone[self.ref[gone] == 0])
+        self.free = np.concatenate([np.delete(self.free, pos), freed]).astype(np.int32)
 
     def _scratch(self, n: int, m: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Reused work arrays for `insert_scans` (grown, never shrunk)."""
