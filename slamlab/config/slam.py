@@ -245,6 +245,11 @@ class MapConfig:
 
 
 # ---- filter/ -------------------------------------------------------------------------------
+def _check_online(value: object) -> None:
+    if value not in ("best", "mean"):
+        raise ConfigError("filter.online", f"must be best or mean, got {value!r}")
+
+
 @dataclass
 class CourseFilterConfig:
     """`filter=course`: every particle matches against ONE shared map, built from the
@@ -252,6 +257,10 @@ class CourseFilterConfig:
 
     GROUP: ClassVar[str] = "filter"
     _target_: str = "slamlab.slam.filters.SharedMapFilter"
+    online: str = "best"  # the online (causal) pose: best (highest-weight particle) or mean (weighted mean)
+
+    def __post_init__(self) -> None:
+        _check_online(self.online)
 
 
 @dataclass
@@ -267,8 +276,7 @@ class RbpfFilterConfig:
     online: str = "best"  # the online (causal) pose: best (highest-weight particle) or mean (weighted mean)
 
     def __post_init__(self) -> None:
-        if self.online not in ("best", "mean"):
-            raise ConfigError("filter.online", f"must be best or mean, got {self.online!r}")
+        _check_online(self.online)
         if (self.step_ref_m is None) != (self.step_ref_rad is None):
             raise ConfigError("filter.step_ref_rad", "set step_ref_m and step_ref_rad together (or both null)")
         if self.step_ref_m is not None:

@@ -157,6 +157,9 @@ class SharedMapFilter(FilterKind):
 
     name = "course"
 
+    def __init__(self, online: str = "best") -> None:  # checked by CourseFilterConfig
+        self.online = online
+
     def maps(self, settings: MapSettings, n: int, start_xy: tuple[float, float], matcher: Matcher | None) -> ParticleMaps:
         return SharedMap(settings, start_xy, matcher)
 
