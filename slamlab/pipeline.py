@@ -7,7 +7,6 @@ calls `run_pipeline`, then writes the run's report (the report layer sits above 
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import os
@@ -247,22 +246,22 @@ def run_texture_stage(seq: Sequence, result: SlamResult, setup: RunSetup, run_di
     Any failure here is reported in metrics and never loses the SLAM results.
     """
     from slamlab.eval.texture import texture_metrics
-    from slamlab.texture.pipeline import run_texture, save_texture_outputs, save_truth_texture
+    from slamlab.texture.pipeline import run_textures, save_texture_outputs, save_truth_texture
     from slamlab.texture.samples import SAMPLE_FRAMES, write_samples
 
     run = RunDirectory(run_dir)
     occ = artifacts.occupancy_probability(result.log_odds.data)
     out: dict = {}
-    slam_tex = run_texture(seq, result.times, result.trajectory, result.log_odds, setup.ground, setup.texture,
-                           sample_frames=SAMPLE_FRAMES)
+    # one pass over the RGB-D stream places every frame with both trajectories; detection
+    # scores do not depend on the trajectory, so only the SLAM one scores the detectors
+    textures = run_textures(seq, result.times, {"slam": result.trajectory, "odometry": result.odometry},
+                            result.log_odds, setup.ground, setup.texture, sample_frames=SAMPLE_FRAMES)
+    slam_tex, odo_tex = textures["slam"], textures["odometry"]
     save_texture_outputs(slam_tex, occ, run.texture_files(TrajectoryKind.SLAM))
     if slam_tex.samples:
         write_samples(run / RunFile.GROUND_FRAMES, slam_tex.samples)
     if seq.ground_truth is not None and seq.ground_truth.floor_texture is not None:
         save_truth_texture(slam_tex, seq.ground_truth.floor_texture, run / RunFile.TEXTURE_TRUTH)
-    # detection scores do not depend on the trajectory: score the detectors once, with SLAM
-    odo_texture = dataclasses.replace(setup.texture, evaluate_detectors=[])
-    odo_tex = run_texture(seq, result.times, result.odometry, result.log_odds, setup.ground, odo_texture)
     save_texture_outputs(odo_tex, occ, run.texture_files(TrajectoryKind.ODOMETRY))
     if seq.ground_truth is not None:
         out = texture_metrics(slam_tex, seq.ground_truth)

@@ -17,6 +17,7 @@ from slamlab.texture.pipeline import (
     TextureResult,
     interpolate_poses,
     run_texture,
+    run_textures,
     save_texture_outputs,
     texture_enabled,
 )
@@ -253,3 +254,31 @@ def test_covered_fraction_counts_floor_not_walls():
     m = texture_metrics(result, truth)
     assert m["covered_fraction"] == pytest.approx(1.0)
     assert m["colour_error"] == pytest.approx(0.0)
+
+
+def test_one_pass_over_the_stream_equals_a_run_per_trajectory(seq, grid):
+    """`run_textures` reads each frame once and places it with every trajectory: each result
+    is what `run_texture` builds for that trajectory alone (colours, counts, cloud, counters,
+    frames outside the trajectory's span, `max_frames`). Only the first one scores the other
+    detectors."""
+    truth = seq.ground_truth.poses
+    drift = truth.copy()
+    drift[:, 0] *= 1.05
+    times = _times(seq)
+    cfg = texture_cfg(max_frames=6, evaluate_detectors=["threshold", "image_plane"])
+    both = run_textures(seq, times, {"truth": truth, "drift": drift}, grid, GROUND, cfg)
+    for name, poses in (("truth", truth), ("drift", drift)):
+        alone = run_texture(seq, times, poses, grid, GROUND, cfg)
+        got = both[name]
+        assert np.array_equal(got.color, alone.color) and np.array_equal(got.count, alone.count)
+        assert np.array_equal(got.floor_points, alone.floor_points) and np.array_equal(got.floor_colors, alone.floor_colors)
+        assert (got.frames_used, got.frames_thinned, got.skipped) == (alone.frames_used, alone.frames_thinned, alone.skipped)
+    assert both["truth"].frames_used == 6 and both["truth"].frames_thinned == seq.rgbd_count - 6
+    assert not np.array_equal(both["truth"].color, both["drift"].color)
+    assert set(both["truth"].detection) == {"threshold", "image_plane"} and set(both["drift"].detection) <= {"threshold"}
+    # trajectories that end after 5 frames: the last frames are skipped, as alone
+    cfg = texture_cfg(max_pose_gap_s=0.5)
+    short = run_textures(seq, times[:5], {"truth": truth[:5], "drift": drift[:5]}, grid, GROUND, cfg)
+    alone = run_texture(seq, times[:5], drift[:5], grid, GROUND, cfg)
+    assert short["drift"].skipped == alone.skipped == {"outside_trajectory": seq.rgbd_count - 5}
+    assert np.array_equal(short["drift"].color, alone.color) and short["drift"].frames_used == 5

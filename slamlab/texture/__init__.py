@@ -8,6 +8,7 @@ Modules (one step each, in pipeline order):
 - `texture_map`: the colour grid aligned with the occupancy grid (mean or robust average);
 - `detection`: detector-vs-label pixel counts (`DetectionCounts`);
 - `pipeline`: `run_texture(sequence, times, poses, grid, ground_cfg, texture_cfg, progress)`
-  -> `TextureResult`, `save_texture_outputs` (scored by `slamlab.eval.texture.texture_metrics`).
+  -> `TextureResult`, `save_texture_outputs` (scored by `slamlab.eval.texture.texture_metrics`);
+  `run_textures(...)` does several trajectories in one pass over the RGB-D stream.
 Test frames are rendered by the simulator's Kinect (`tests/synthetic_rgbd.py`).
 """

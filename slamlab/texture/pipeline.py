@@ -49,6 +49,7 @@ from slamlab.texture.texture_map import TextureAccumulator, resample_to_grid
 __all__ = [
     "TextureResult",
     "run_texture",
+    "run_textures",
     "save_texture_outputs",
     "texture_enabled",
     "interpolate_poses",
@@ -238,6 +239,49 @@ def run_texture(
     Raises DataError (before any work) if the sequence has no RGB-D, no Kinect calibration or
     no body height, and ConfigError for impossible config values. Never raises for a bad frame.
     """
+    return run_textures(sequence, times, {"only": poses}, grid, ground, texture, progress, sample_frames)["only"]
+
+
+@dataclass
+class _Pass:
+    """One trajectory's share of a texture run: where it places the frames, its own detector
+    (a detector may carry state, so every trajectory gets the sequence of calls a run of its
+    own would make) and what it has built so far."""
+
+    track: PoseTrack
+    detector: GroundDetector
+    acc: TextureAccumulator
+    compare: dict[str, GroundDetector]  # other detectors scored on labelled frames (first pass only)
+    sample_detectors: dict[str, GroundDetector]  # detectors drawn on report frames (first pass only)
+    skipped: dict[str, int] = field(default_factory=dict)
+    detection: dict[str, DetectionCounts] = field(default_factory=dict)
+    samples: list[FrameSample] = field(default_factory=list)
+    frame_times: list[float] = field(default_factory=list)
+    detect_times: list[float] = field(default_factory=list)
+    frames_used: int = 0
+    thinned: int = 0  # frames left out because this trajectory already used `max_frames`
+
+    def skip(self, reason: str, frame: RGBDFrame | None = None, detail: str = "") -> None:
+        self.skipped[reason] = self.skipped.get(reason, 0) + 1
+        if detail and self.skipped[reason] <= 3:  # say why, but do not flood the log
+            log.warning("texture: frame %s skipped (%s): %s", getattr(frame, "index", "?"), reason, detail)
+
+
+def run_textures(
+    sequence: Sequence,
+    times: np.ndarray,
+    trajectories: dict[str, np.ndarray],
+    grid: GridImage,
+    ground: object,
+    texture: TextureConfig,
+    progress: Callable[[int, int], None] | None = None,
+    sample_frames: int = 0,
+) -> dict[str, TextureResult]:
+    """`run_texture` for several trajectories (e.g. {"slam": ..., "odometry": ...}) in ONE pass
+    over the RGB-D stream: each frame is read and back-projected once, then placed, detected
+    and coloured with each trajectory. Each result equals a `run_texture` of that trajectory
+    alone; only the first trajectory scores `texture.evaluate_detectors` and keeps the
+    report's `sample_frames` (as the pipeline asked of the SLAM pass before)."""
     if sequence.rgbd is None:
         raise DataError(sequence.name, "has no RGB-D frames: texture mapping needs a sequence with Kinect data")
     if sequence.calibration is None:
@@ -246,10 +290,12 @@ def run_texture(
         )
     if sequence.body_height_m is None:
         raise DataError(sequence.name, "has no body height: cannot place the camera above the floor")
-    try:
-        track = PoseTrack(times, poses)
-    except ValueError as exc:
-        raise ConfigError("texture", f"trajectory: {exc}") from None
+    tracks: dict[str, PoseTrack] = {}
+    for name, poses in trajectories.items():
+        try:
+            tracks[name] = PoseTrack(times, poses)
+        except ValueError as exc:
+            raise ConfigError("texture", f"trajectory: {exc}") from None
 
     calib: KinectCalibration = sequence.calibration
     if texture.calibration_mirrored:
@@ -259,6 +305,7 @@ def run_texture(
     max_rgb_dt = float(texture.max_rgb_dt_s)
     max_gap = float(texture.max_pose_gap_s)
     distort_rgb = texture.distort_rgb
+    body_height_m = float(sequence.body_height_m)
 
     backproject = Backprojector(
         calib.ir,
@@ -267,23 +314,7 @@ def run_texture(
         min_depth_m=float(texture.min_depth_m),
         max_depth_m=float(texture.max_depth_m),
     )
-    detector = build_detector(ground)
-    det_name = str(getattr(detector, "name", type(detector).__name__))
-    acc = TextureAccumulator.like(
-        grid,
-        average=texture.average,
-        robust_reject=float(texture.robust_reject),
-        robust_min_count=int(texture.robust_min_count),
-    )
-
-    # Detection quality on labelled frames: the chosen detector, plus others for comparison.
     labels = sequence.ground_truth.ground_labels if sequence.ground_truth is not None else {}
-    compare: dict[str, GroundDetector] = {}
-    if labels:
-        for name in texture.evaluate_detectors:
-            if str(name) != det_name:
-                compare[str(name)] = evaluated_detector(str(name))
-    detection: dict[str, DetectionCounts] = {}
     total = int(sequence.rgbd_count or 0)
     # which frames the report sees: labelled ones when there are labels (so precision and
     # recall can be shown), matched by frame index; otherwise by position in the stream
@@ -291,24 +322,29 @@ def run_texture(
     pool = sorted(labels) if labels else None
     sample_at = set() if sample_frames <= 0 else (
         {pool[i] for i in sample_ordinals(len(pool), sample_frames)} if pool else sample_ordinals(total, sample_frames))
-    samples: list[FrameSample] = []
-    sample_detectors: dict[str, GroundDetector] = {}
-    if sample_at:  # the run's detector and every evaluated one, labels or not
-        sample_detectors = {det_name: detector}
-        for name in texture.evaluate_detectors:
-            sample_detectors.setdefault(str(name), compare.get(str(name)) or evaluated_detector(str(name)))
 
-    skipped: dict[str, int] = {}
+    passes: dict[str, _Pass] = {}
+    for k, (name, track) in enumerate(tracks.items()):
+        detector = build_detector(ground)
+        det_name = str(getattr(detector, "name", type(detector).__name__))
+        compare: dict[str, GroundDetector] = {}
+        sample_detectors: dict[str, GroundDetector] = {}
+        if k == 0:  # detection quality on labelled frames: the chosen detector, plus others
+            if labels:
+                for other in texture.evaluate_detectors:
+                    if str(other) != det_name:
+                        compare[str(other)] = evaluated_detector(str(other))
+            if sample_at:  # the run's detector and every evaluated one, labels or not
+                sample_detectors = {det_name: detector}
+                for other in texture.evaluate_detectors:
+                    sample_detectors.setdefault(str(other), compare.get(str(other)) or evaluated_detector(str(other)))
+        acc = TextureAccumulator.like(
+            grid, average=texture.average, robust_reject=float(texture.robust_reject), robust_min_count=int(texture.robust_min_count),
+        )
+        passes[name] = _Pass(track, detector, acc, compare, sample_detectors)
+
     messages: list[str] = []
-    frame_times: list[float] = []
-    detect_times: list[float] = []
-    frames_total = frames_used = thinned = 0
-
-    def skip(reason: str, frame: RGBDFrame | None = None, detail: str = "") -> None:
-        skipped[reason] = skipped.get(reason, 0) + 1
-        if detail and skipped[reason] <= 3:  # say why, but do not flood the log
-            log.warning("texture: frame %s skipped (%s): %s", getattr(frame, "index", "?"), reason, detail)
-
+    frames_total = thinned = 0
     stream = iter(sequence.rgbd())
     while True:
         try:
@@ -323,58 +359,82 @@ def run_texture(
         frames_total += 1
         if progress is not None:
             progress(frames_total, max(total, frames_total))
-        if (frames_total - 1) % frame_every != 0 or (max_frames is not None and frames_used >= int(max_frames)):
+        if (frames_total - 1) % frame_every != 0:
             thinned += 1
+            continue
+        # `max_frames` counts each trajectory's own used frames (as a run of its own would)
+        active = [(k, ps) for k, ps in enumerate(passes.values()) if max_frames is None or ps.frames_used < int(max_frames)]
+        for ps in passes.values():
+            if max_frames is not None and ps.frames_used >= int(max_frames):
+                ps.thinned += 1
+        if not active:
             continue
         t0 = time.perf_counter()
         try:
-            used, dt_detect, dt_eval = _process_frame(
-                frame, sequence, calib, backproject, detector, det_name, compare, labels, detection,
-                acc, track, max_gap, max_rgb_dt, distort_rgb, skip,
-            )  # fmt: skip
+            pts = _frame_points(frame, backproject, [ps for _, ps in active])
         except (ValueError, IndexError, DataError) as exc:
-            # The frame's own data is inconsistent (e.g. odd shapes): skip it, keep going.
-            skip("bad_frame", frame, f"{type(exc).__name__}: {exc}")
+            for _, ps in active:
+                ps.skip("bad_frame", frame, f"{type(exc).__name__}: {exc}")
             continue
-        if used:
-            frames_used += 1
+        dt_points = time.perf_counter() - t0
+        if pts is None:
+            continue
+        for k, ps in active:
+            t1 = time.perf_counter()
+            try:
+                used, dt_detect, dt_eval = _place_frame(
+                    frame, pts, calib, ps, labels, max_gap, max_rgb_dt, distort_rgb, body_height_m)
+            except (ValueError, IndexError, DataError) as exc:
+                # The frame's own data is inconsistent (e.g. odd shapes): skip it, keep going.
+                ps.skip("bad_frame", frame, f"{type(exc).__name__}: {exc}")
+                continue
+            if not used:
+                continue
+            ps.frames_used += 1
             # Evaluation-only work (other detectors on labelled frames) is not the mapper's cost.
-            frame_times.append(time.perf_counter() - t0 - dt_eval)
-            detect_times.append(dt_detect)
-            if (frame.index if sample_by_index else frames_total - 1) in sample_at:  # after the timing: the report's cost, not the mapper's
-                kept = sample_frame(frame, calib, backproject, _camera_to_world(frame, track, float(sequence.body_height_m)),
-                                    sample_detectors, labels.get(frame.index) if labels else None, distort_rgb)
+            ps.frame_times.append(dt_points + time.perf_counter() - t1 - dt_eval)
+            ps.detect_times.append(dt_detect)
+            if k == 0 and (frame.index if sample_by_index else frames_total - 1) in sample_at:
+                # after the timing: the report's cost, not the mapper's
+                kept = sample_frame(frame, calib, backproject, _camera_to_world(frame, ps.track, body_height_m),
+                                    ps.sample_detectors, labels.get(frame.index) if labels else None, distort_rgb)
                 if kept is not None:
-                    samples.append(kept)
+                    ps.samples.append(kept)
 
+    return {name: _result(ps, grid, messages, frames_total, thinned + ps.thinned) for name, ps in passes.items()}
+
+
+def _result(ps: _Pass, grid: GridImage, stream_messages: list[str], frames_total: int, thinned: int) -> TextureResult:
+    """One trajectory's TextureResult once the stream is done."""
+    messages = list(stream_messages)
     if frames_total == 0:
         messages.append("the RGB-D stream was empty")
-    elif frames_used == 0:
-        messages.append(f"no usable RGB-D frame out of {frames_total}: skipped {skipped}")
+    elif ps.frames_used == 0:
+        messages.append(f"no usable RGB-D frame out of {frames_total}: skipped {ps.skipped}")
     if messages:
         for m in messages[-1:]:
             log.warning("texture: %s", m)
-    pts, cols = acc.cloud()
+    pts, cols = ps.acc.cloud()
     return TextureResult(
-        color=acc.color(),
-        count=acc.counts.copy(),
+        color=ps.acc.color(),
+        count=ps.acc.counts.copy(),
         resolution_m=float(grid.resolution_m),
         origin_xy=(float(grid.origin_xy[0]), float(grid.origin_xy[1])),
         floor_points=pts,
         floor_colors=cols,
-        detector=det_name,
+        detector=str(getattr(ps.detector, "name", type(ps.detector).__name__)),
         frames_total=frames_total,
-        frames_used=frames_used,
+        frames_used=ps.frames_used,
         frames_thinned=thinned,
-        skipped=skipped,
-        frame_time_s=np.asarray(frame_times),
-        detect_time_s=np.asarray(detect_times),
-        points_added=int(acc.count.sum()),
-        points_outside_grid=acc.points_outside,
-        points_rejected=acc.points_rejected,
-        detection=detection,
+        skipped=ps.skipped,
+        frame_time_s=np.asarray(ps.frame_times),
+        detect_time_s=np.asarray(ps.detect_times),
+        points_added=int(ps.acc.count.sum()),
+        points_outside_grid=ps.acc.points_outside,
+        points_rejected=ps.acc.points_rejected,
+        detection=ps.detection,
         messages=messages,
-        samples=samples,
+        samples=ps.samples,
     )
 
 
@@ -386,41 +446,46 @@ def _camera_to_world(frame: RGBDFrame, track: PoseTrack, body_height_m: float) -
     return T_wb @ np.asarray(frame.camera_to_body, dtype=np.float64).reshape(4, 4)
 
 
-def _process_frame(
+def _frame_points(frame: RGBDFrame, backproject: Backprojector, passes: list[_Pass]):
+    """The frame's valid depth pixels as IR-frame points (`Backprojector`), or None (the skip
+    is counted in every pass) when the depth is unusable. Shared by all trajectories."""
+    depth = np.asarray(frame.depth_m)
+    if depth.ndim != 2 or depth.size == 0:
+        for ps in passes:
+            ps.skip("bad_depth", frame, f"depth shape {depth.shape}")
+        return None
+    pts = backproject(depth)
+    if len(pts) == 0:
+        for ps in passes:
+            ps.skip("no_valid_depth")
+        return None
+    return pts
+
+
+def _place_frame(
     frame: RGBDFrame,
-    sequence: Sequence,
+    pts,
     calib: KinectCalibration,
-    backproject: Backprojector,
-    detector: GroundDetector,
-    det_name: str,
-    compare: dict[str, GroundDetector],
+    ps: _Pass,
     labels: dict[int, np.ndarray],
-    detection: dict[str, DetectionCounts],
-    acc: TextureAccumulator,
-    track: PoseTrack,
     max_gap: float,
     max_rgb_dt: float,
     distort_rgb: bool,
-    skip: Callable[..., None],
+    body_height_m: float,
 ) -> tuple[bool, float, float]:
-    """One frame through the pipeline. Returns (used, detector s, evaluation-only s); skips call `skip`."""
+    """One frame's points placed with one trajectory, through its detector into its texture.
+    Returns (used, detector s, evaluation-only s); skips are counted in `ps`."""
     depth = np.asarray(frame.depth_m)
-    if depth.ndim != 2 or depth.size == 0:
-        skip("bad_depth", frame, f"depth shape {depth.shape}")
-        return False, 0.0, 0.0
-    pts = backproject(depth)
-    if len(pts) == 0:
-        skip("no_valid_depth")
-        return False, 0.0, 0.0
-    pose, gap = track(frame.t)
+    pose, gap = ps.track(frame.t)
     if gap > max_gap:
-        skip("outside_trajectory", frame, f"t={frame.t:.3f} is {gap:.2f} s outside the trajectory")
+        ps.skip("outside_trajectory", frame, f"t={frame.t:.3f} is {gap:.2f} s outside the trajectory")
         return False, 0.0, 0.0
-    T_wc = _camera_to_world(frame, track, float(sequence.body_height_m))
+    T_wc = _camera_to_world(frame, ps.track, body_height_m)
     query = GroundQuery(pts, T_wc, scaled_intrinsics(calib.ir, depth.shape[1], depth.shape[0]))
+    det_name = str(getattr(ps.detector, "name", type(ps.detector).__name__))
 
     t0 = time.perf_counter()
-    floor = detector(query)
+    floor = ps.detector(query)
     dt_detect = time.perf_counter() - t0
 
     dt_eval = 0.0
@@ -430,28 +495,28 @@ def _process_frame(
         truth = np.asarray(truth, dtype=bool)
         if truth.shape == depth.shape:
             truth_at = truth[pts.v, pts.u]
-            detection.setdefault(det_name, DetectionCounts()).add(floor, truth_at)
-            for name, det in compare.items():
-                detection.setdefault(name, DetectionCounts()).add(det(query), truth_at)
+            ps.detection.setdefault(det_name, DetectionCounts()).add(floor, truth_at)
+            for name, det in ps.compare.items():
+                ps.detection.setdefault(name, DetectionCounts()).add(det(query), truth_at)
         dt_eval = time.perf_counter() - t1
 
     rgb = frame.rgb
     if rgb is None:
-        skip("no_rgb")
+        ps.skip("no_rgb")
         return False, dt_detect, dt_eval
     if not np.isfinite(frame.rgb_t) or abs(frame.rgb_t - frame.t) > max_rgb_dt:
-        skip("rgb_time_mismatch", frame, f"colour {frame.rgb_t - frame.t:+.3f} s from depth")
+        ps.skip("rgb_time_mismatch", frame, f"colour {frame.rgb_t - frame.t:+.3f} s from depth")
         return False, dt_detect, dt_eval
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
-        skip("bad_rgb", frame, f"colour image {rgb.shape} {rgb.dtype}")
+        ps.skip("bad_rgb", frame, f"colour image {rgb.shape} {rgb.dtype}")
         return False, dt_detect, dt_eval
 
     idx = np.flatnonzero(floor)
     if idx.size:
         colors, keep = sample_colors(pts.cam[idx], rgb, calib, distort=distort_rgb)
         idx = idx[keep]
-        acc.add(query.world_at(idx), colors)
+        ps.acc.add(query.world_at(idx), colors)
     return True, dt_detect, dt_eval
 
 
