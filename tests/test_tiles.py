@@ -1,12 +1,14 @@
 """Copy-on-write tiled maps (slamlab.slam.tiles): isolation between particles, sharing after
 resampling, memory counted once, and the same cell values as the dense grid."""
 
+import sys
+
 import numpy as np
 import pytest
 
 from slamlab.slam.grid import MapSettings, OccupancyGrid
 from slamlab.slam.scan import points_to_world
-from slamlab.slam.tiles import EMPTY, TILE, TiledMaps
+from slamlab.slam.tiles import EMPTY, TILE, TiledMaps, _TilePool
 
 RES = 0.05
 # 12.8 m = 256 cells = 8 tiles: the dense grid and the tiles then share one origin
@@ -246,3 +248,29 @@ def test_reference_counts_after_inserts_equal_a_full_recount():
         if k % 4 == 3:  # children share their parents' tiles, then write into some of them
             maps.resample(rng.integers(0, n, n))
     assert maps.tiles_in_use == len(np.unique(maps.table[maps.table != EMPTY]))
+
+
+def test_tile_pool_grows_in_place_and_keeps_its_tiles():
+    """The pool is a memory map resized in place (no second copy of the tiles while it
+    grows); a view still held elsewhere makes it copy instead, and that view stays valid."""
+    pool = _TilePool(4)
+    pool.array[1] = 1.5
+    pool.array[3, 2, 5] = -2.0
+    pool.grow(64)
+    assert pool.array.shape == (64, TILE, TILE)
+    assert (pool.array[1] == 1.5).all() and pool.array[3, 2, 5] == -2.0
+    assert not pool.array[0].any() and not pool.array[4:].any()  # new tiles read zero
+    if sys.platform.startswith("linux"):
+        assert pool.copies == 0
+    held = pool.array[1]
+    pool.grow(128)
+    assert pool.copies == 1 and (held == 1.5).all() and (pool.array[1] == 1.5).all() and pool.array.shape[0] == 128
+    # in a filter run no view outlives a step: every growth is in place
+    maps = TiledMaps(SETTINGS, 8, field_sigma_m=0.1, field_radius_m=0.3, initial_tiles=2)
+    rng = np.random.default_rng(3)
+    for _ in range(4):
+        pts, origin = _scan(rng)
+        maps.insert_scan(rng.normal(0, 0.2, (8, 3)), pts, origin)
+    assert maps.pool_lo.shape[0] > 2
+    if sys.platform.startswith("linux"):
+        assert maps._pools["lo"].copies == 0 and maps._pools["f"].copies == 0

@@ -31,6 +31,7 @@ has the field recomputed within the kernel radius. The result equals a full reco
 from __future__ import annotations
 
 import math
+import mmap
 
 import numba
 import numpy as np
@@ -45,6 +46,7 @@ TILE_SHIFT = 5
 TILE = 1 << TILE_SHIFT  # cells per tile side
 TILE_MASK = TILE - 1
 EMPTY = 0  # pool index of the shared all-zero tile
+_TILE_BYTES = TILE * TILE * 4  # one float32 tile
 
 
 @numba.njit(cache=True, inline="always")
@@ -342,12 +344,43 @@ def insert_scans(table, pool_lo, pool_f, has_field, ref, free, released, starts,
             tiled_field_update(table, i, pool_lo, pool_f, ref, mine, mine_rel, used[j:j + 1], thresh, kernel, flips[j], nflip)
 
 
-def _grown(pool: np.ndarray, capacity: int, keep: np.ndarray) -> np.ndarray:
-    """A larger pool holding the tiles `keep` (and the empty tile) at the same indices."""
-    out = np.empty((capacity,) + pool.shape[1:], dtype=pool.dtype)
-    out[EMPTY] = 0.0
-    out[keep] = pool[keep]
-    return out
+def _anonymous_map(nbytes: int) -> mmap.mmap:
+    """Private anonymous memory (zero-filled; private, because a shared anonymous map cannot
+    grow: pages past its first size raise SIGBUS)."""
+    private = getattr(mmap, "MAP_PRIVATE", None)
+    if private is None:  # Windows: no flags (its maps are not resized in place anyway)
+        return mmap.mmap(-1, nbytes)
+    return mmap.mmap(-1, nbytes, flags=private | mmap.MAP_ANONYMOUS)
+
+
+class _TilePool:
+    """`array` (capacity, TILE, TILE) float32 tiles in an anonymous memory map (zero-filled).
+
+    Why a map: `grow` resizes it in place (mremap on Linux moves page tables, not bytes), so a
+    growing pool is never held twice; a pool of 2 GB of tiles used to peak at 4 GB while a
+    doubled copy was filled. Where a map cannot be resized (other platforms, or a view of the
+    array still held elsewhere) it falls back to a copy into a new map."""
+
+    def __init__(self, capacity: int) -> None:
+        self._mm = _anonymous_map(capacity * _TILE_BYTES)
+        self.array = self._view()
+        self.copies = 0  # growths that had to copy (tests; 0 on Linux in a run)
+
+    def _view(self) -> np.ndarray:
+        return np.frombuffer(self._mm, dtype=np.float32).reshape(-1, TILE, TILE)
+
+    def grow(self, capacity: int) -> None:
+        old_tiles = self.array.shape[0]
+        self.array = None  # our own view of the map must go before it can be resized
+        try:
+            self._mm.resize(capacity * _TILE_BYTES)
+        except (BufferError, OSError, SystemError, ValueError):
+            old = np.frombuffer(self._mm, dtype=np.float32).reshape(-1, TILE, TILE)
+            mm = _anonymous_map(capacity * _TILE_BYTES)
+            np.frombuffer(mm, dtype=np.float32).reshape(-1, TILE, TILE)[:old_tiles] = old
+            self._mm = mm
+            self.copies += 1
+        self.array = self._view()
 
 
 class TiledMaps:
@@ -383,8 +416,9 @@ class TiledMaps:
                 raise ConfigError("matcher.radius_m (or sigma_m)", f"must stay below {(3 * TILE) // 4 - 1} cells ({((3 * TILE) // 4 - 1) * self.res:g} m) at this resolution")
             self.kernel = gaussian_kernel(field_sigma_m / self.res, radius)
         cap = max(int(initial_tiles), 2)
-        self.pool_lo = np.zeros((cap, TILE, TILE), dtype=np.float32)
-        self.pool_f = np.zeros((cap if self.has_field else 1, TILE, TILE), dtype=np.float32)
+        self._pools = {"lo": _TilePool(cap), "f": _TilePool(cap if self.has_field else 1)}
+        self.pool_lo = self._pools["lo"].array
+        self.pool_f = self._pools["f"].array
         self.ref = np.zeros(cap, dtype=np.int32)
         self.free = np.arange(1, cap, dtype=np.int32)  # tile ids no table refers to (not 0)
         self.peak_tiles = 0
@@ -432,12 +466,13 @@ class TiledMaps:
             return
         cap = len(self.ref)
         new_cap = max(2 * cap, cap + n_tiles - len(self.free))
-        # only tiles in use are copied: free ones hold nothing, and untouched memory stays
-        # unallocated (np.empty) until a tile is taken
-        keep = np.flatnonzero(self.ref > 0)
-        self.pool_lo = _grown(self.pool_lo, new_cap, keep)
+        # the pools grow in place (`_TilePool`); new tiles are untouched memory until taken
+        self.pool_lo = self.pool_f = None  # views of the maps: released so they can be resized
+        self._pools["lo"].grow(new_cap)
         if self.has_field:
-            self.pool_f = _grown(self.pool_f, new_cap, keep)
+            self._pools["f"].grow(new_cap)
+        self.pool_lo = self._pools["lo"].array
+        self.pool_f = self._pools["f"].array
         self.ref = np.concatenate([self.ref, np.zeros(new_cap - cap, dtype=np.int32)])
         self.free = np.concatenate([self.free, np.arange(cap, new_cap, dtype=np.int32)])
 
