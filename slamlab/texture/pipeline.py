@@ -40,7 +40,7 @@ from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.frames import GridImage, KinectCalibration, RGBDFrame, Sequence
 from slamlab import geometry
 from slamlab.texture.align import sample_colors, unmirror_calibration
-from slamlab.texture.backproject import Backprojector
+from slamlab.texture.backproject import Backprojector, DepthPoints
 from slamlab.texture.detection import DetectionCounts
 from slamlab.texture.ground import GroundDetector, GroundQuery
 from slamlab.texture.samples import FrameSample, sample_frame, sample_ordinals
@@ -446,7 +446,7 @@ def _camera_to_world(frame: RGBDFrame, track: PoseTrack, body_height_m: float) -
     return T_wb @ np.asarray(frame.camera_to_body, dtype=np.float64).reshape(4, 4)
 
 
-def _frame_points(frame: RGBDFrame, backproject: Backprojector, passes: list[_Pass]):
+def _frame_points(frame: RGBDFrame, backproject: Backprojector, passes: list[_Pass]) -> DepthPoints | None:
     """The frame's valid depth pixels as IR-frame points (`Backprojector`), or None (the skip
     is counted in every pass) when the depth is unusable. Shared by all trajectories."""
     depth = np.asarray(frame.depth_m)
@@ -464,7 +464,7 @@ def _frame_points(frame: RGBDFrame, backproject: Backprojector, passes: list[_Pa
 
 def _place_frame(
     frame: RGBDFrame,
-    pts,
+    pts: DepthPoints,
     calib: KinectCalibration,
     ps: _Pass,
     labels: dict[int, np.ndarray],
