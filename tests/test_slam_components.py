@@ -376,3 +376,22 @@ def test_likelihood_matcher_gives_the_same_bytes_on_one_thread():
         numba.set_num_threads(before)
     assert np.array_equal(a_p, b_p) and np.array_equal(a_s, b_s) and m.map_reads == 2 * reads
     assert not np.allclose(a_p, poses)
+
+
+def test_voxel_filter_keeps_one_point_per_square_in_scan_order():
+    from slamlab.slam.matcher import voxel_filter
+
+    # a person 0.5 m away covers many beams; a wall 5 m away is sampled sparsely
+    a = np.radians(np.arange(-20.0, 20.0, 0.25))
+    blob = np.stack([0.5 * np.cos(a), 0.5 * np.sin(a)], axis=1)  # 160 points, 0.35 m of surface
+    wall = np.stack([np.full(40, 5.0), np.linspace(-2.0, 2.0, 40)], axis=1)  # 10 cm apart
+    xy = np.vstack([blob, wall])
+    kept = voxel_filter(xy, 0.1)
+    assert len(voxel_filter(blob, 0.1)) <= 10  # the blob weighs by its size now
+    assert len(voxel_filter(wall, 0.1)) >= 38  # the sparse wall keeps (nearly) every point
+    # the first point of each square, in scan order, and nothing invented
+    keys = np.floor(kept / 0.1).astype(int)
+    assert len({tuple(k) for k in keys}) == len(kept)
+    idx = [int(np.flatnonzero((xy == p).all(axis=1))[0]) for p in kept]
+    assert idx == sorted(idx)
+    assert voxel_filter(xy, 0.0) is xy
