@@ -572,8 +572,13 @@ class TiledMaps:
         if len(rr) == 0:
             rr, cc = np.array([0]), np.array([0])
         r0, r1, c0, c1 = rr.min(), rr.max() + 1, cc.min(), cc.max() + 1
-        block = self.pool_lo[tab[r0:r1, c0:c1]]  # (th, tw, T, T)
-        data = block.transpose(0, 2, 1, 3).reshape((r1 - r0) * TILE, (c1 - c0) * TILE).copy()
+        tw = c1 - c0
+        data = np.empty(((r1 - r0) * TILE, tw * TILE), dtype=np.float32)
+        for i in range(r1 - r0):
+            # one band of tiles at a time: a whole-map gather plus its transposed copy would
+            # hold the map twice more (0.5 GB for a 570 x 290 m building at 5 cm)
+            band = self.pool_lo[tab[r0 + i, c0:c1]]  # (tw, T, T)
+            data[i * TILE:(i + 1) * TILE] = band.transpose(1, 0, 2).reshape(TILE, tw * TILE)
         ox = float(self.origin[0] + c0 * TILE * self.res)
         oy = float(self.origin[1] + r0 * TILE * self.res)
         return GridImage(data=data, resolution_m=self.res, origin_xy=(ox, oy))
