@@ -525,7 +525,9 @@ class TiledMaps:
         gone = gone[gone != EMPTY]
         np.subtract.at(self.ref, gone, 1)
         freed = np.unique(gone[self.ref[gone] == 0])
-        self.free = np.concatenate([np.delete(self.free, pos), freed]).astype(np.int32)
+        # tiles just let go of go first: they are reused before pool memory never touched
+        # yet, so the pool's resident pages stay close to the tiles in use
+        self.free = np.concatenate([freed, np.delete(self.free, pos)]).astype(np.int32)
 
     def _scratch(self, n: int, m: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Reused work arrays for `insert_scans` (grown, never shrunk)."""
