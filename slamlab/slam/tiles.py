@@ -417,8 +417,6 @@ class TiledMaps:
             self.kernel = gaussian_kernel(field_sigma_m / self.res, radius)
         cap = max(int(initial_tiles), 2)
         self._pools = {"lo": _TilePool(cap), "f": _TilePool(cap if self.has_field else 1)}
-        self.pool_lo = self._pools["lo"].array
-        self.pool_f = self._pools["f"].array
         self.ref = np.zeros(cap, dtype=np.int32)
         self.free = np.arange(1, cap, dtype=np.int32)  # tile ids no table refers to (not 0)
         self.peak_tiles = 0
@@ -456,6 +454,16 @@ class TiledMaps:
 
     # ---- tile pool ----------------------------------------------------------------------
     @property
+    def pool_lo(self) -> np.ndarray:
+        """(capacity, TILE, TILE) float32 log-odds tiles (index EMPTY: all zero)."""
+        return self._pools["lo"].array
+
+    @property
+    def pool_f(self) -> np.ndarray:
+        """Likelihood-field tiles, as `pool_lo` (one unused tile without a field)."""
+        return self._pools["f"].array
+
+    @property
     def tiles_in_use(self) -> int:
         """Distinct tiles held (shared tiles count once; the empty tile not at all)."""
         return int(len(self.ref) - 1 - len(self.free))
@@ -467,12 +475,9 @@ class TiledMaps:
         cap = len(self.ref)
         new_cap = max(2 * cap, cap + n_tiles - len(self.free))
         # the pools grow in place (`_TilePool`); new tiles are untouched memory until taken
-        self.pool_lo = self.pool_f = None  # views of the maps: released so they can be resized
         self._pools["lo"].grow(new_cap)
         if self.has_field:
             self._pools["f"].grow(new_cap)
-        self.pool_lo = self._pools["lo"].array
-        self.pool_f = self._pools["f"].array
         self.ref = np.concatenate([self.ref, np.zeros(new_cap - cap, dtype=np.int32)])
         self.free = np.concatenate([self.free, np.arange(cap, new_cap, dtype=np.int32)])
 
@@ -499,7 +504,7 @@ class TiledMaps:
         starts = np.concatenate([[0], np.cumsum(need)]).astype(np.int64)
         self._reserve(int(starts[-1]))
         used = np.zeros(len(which), dtype=np.int64)
-        released = np.empty(len(self.free), dtype=np.int32)
+        released = np.empty(int(starts[-1]), dtype=np.int32)  # the tiles each fresh one replaces
         # each cell flips at most once down (free pass) and once up (hit pass); a beam walks
         # at most its length in cells + 2 (rounding at both ends)
         n_flips = int(np.ceil(np.sqrt(((pts - origin) ** 2).sum(axis=1)) / self.res).sum()) + 3 * len(pts)
@@ -511,7 +516,7 @@ class TiledMaps:
             np.float32(s.log_odds_occupied), np.float32(s.log_odds_free), np.float32(s.clamp_min),
             np.float32(s.clamp_max), np.float32(s.occupied_threshold), self.kernel, rows, cols, flips,
         )
-        # peak: before the recount frees the tiles the copies replaced, both are held
+        # peak: before `_release` frees the tiles the copies replaced, both are held
         self.peak_tiles = max(self.peak_tiles, self.tiles_in_use + int(used.sum()))
         self.tiles_taken += int(used.sum())
         self._release(starts, used, released)
@@ -520,7 +525,8 @@ class TiledMaps:
         """After `insert_scans`: the fresh tiles taken leave the free list, and the tiles they
         replaced lose one reference each (returning to the free list at zero). The same counts
         a full `_recount` over the tables gives, without reading the tables."""
-        pos = np.repeat(starts[:-1], used) + (np.arange(int(used.sum())) - np.repeat(np.cumsum(used) - used, used))
+        # positions in the free list of the tiles taken: the first used[j] of particle j's slice
+        pos = np.concatenate([np.zeros(0, np.int64), *(np.arange(a, a + u) for a, u in zip(starts[:-1], used))])
         gone = released[pos]
         gone = gone[gone != EMPTY]
         np.subtract.at(self.ref, gone, 1)
@@ -576,10 +582,11 @@ class TiledMaps:
         r0, r1, c0, c1 = rr.min(), rr.max() + 1, cc.min(), cc.max() + 1
         tw = c1 - c0
         data = np.empty(((r1 - r0) * TILE, tw * TILE), dtype=np.float32)
+        pool = self.pool_lo
         for i in range(r1 - r0):
             # one band of tiles at a time: a whole-map gather plus its transposed copy would
             # hold the map twice more (0.5 GB for a 570 x 290 m building at 5 cm)
-            band = self.pool_lo[tab[r0 + i, c0:c1]]  # (tw, T, T)
+            band = pool[tab[r0 + i, c0:c1]]  # (tw, T, T)
             data[i * TILE:(i + 1) * TILE] = band.transpose(1, 0, 2).reshape(TILE, tw * TILE)
         ox = float(self.origin[0] + c0 * TILE * self.res)
         oy = float(self.origin[1] + r0 * TILE * self.res)
