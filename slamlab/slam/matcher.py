@@ -415,9 +415,7 @@ class LikelihoodFieldMatcher(Matcher):
 
     def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
         assert grid.field is not None, "grid built without a likelihood field"
-        xy = voxel_filter(scan.xy, self.voxel_m)
-        coarse = np.ascontiguousarray(xy[:: self.coarse_beam_step])
-        fine = np.ascontiguousarray(xy[:: self.beam_step])
+        coarse, fine = self._points(scan)
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
         evals = np.empty(len(poses), dtype=np.int64)
@@ -431,9 +429,7 @@ class LikelihoodFieldMatcher(Matcher):
 
     def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
         assert maps.has_field, "maps built without a likelihood field"
-        xy = voxel_filter(scan.xy, self.voxel_m)
-        coarse = np.ascontiguousarray(xy[:: self.coarse_beam_step])
-        fine = np.ascontiguousarray(xy[:: self.beam_step])
+        coarse, fine = self._points(scan)
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
         evals = np.empty(len(poses), dtype=np.int64)
@@ -445,6 +441,11 @@ class LikelihoodFieldMatcher(Matcher):
         )
         self._count_field_reads(len(poses), len(coarse), len(fine), evals)
         return self._finish(poses, best, scores)
+
+    def _points(self, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
+        """The scan points the coarse grid and the hill climb use (after `voxel_filter`)."""
+        xy = voxel_filter(scan.xy, self.voxel_m)
+        return np.ascontiguousarray(xy[:: self.coarse_beam_step]), np.ascontiguousarray(xy[:: self.beam_step])
 
     def _count_field_reads(self, n: int, n_coarse: int, n_fine: int, evals: np.ndarray) -> None:
         coarse = n * len(self.offsets) * n_coarse if len(self.offsets) > 1 else 0
