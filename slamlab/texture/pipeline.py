@@ -250,6 +250,7 @@ class _Pass:
 
     track: PoseTrack
     detector: GroundDetector
+    name: str  # the detector's, as results and detection scores report it
     acc: TextureAccumulator
     compare: dict[str, GroundDetector]  # other detectors scored on labelled frames (first pass only)
     sample_detectors: dict[str, GroundDetector]  # detectors drawn on report frames (first pass only)
@@ -341,7 +342,7 @@ def run_textures(
         acc = TextureAccumulator.like(
             grid, average=texture.average, robust_reject=float(texture.robust_reject), robust_min_count=int(texture.robust_min_count),
         )
-        passes[name] = _Pass(track, detector, acc, compare, sample_detectors)
+        passes[name] = _Pass(track, detector, det_name, acc, compare, sample_detectors)
 
     messages: list[str] = []
     frames_total = thinned = 0
@@ -363,10 +364,12 @@ def run_textures(
             thinned += 1
             continue
         # `max_frames` counts each trajectory's own used frames (as a run of its own would)
-        active = [(k, ps) for k, ps in enumerate(passes.values()) if max_frames is None or ps.frames_used < int(max_frames)]
-        for ps in passes.values():
+        active: list[tuple[int, _Pass]] = []
+        for k, ps in enumerate(passes.values()):
             if max_frames is not None and ps.frames_used >= int(max_frames):
                 ps.thinned += 1
+            else:
+                active.append((k, ps))
         if not active:
             continue
         t0 = time.perf_counter()
@@ -396,7 +399,7 @@ def run_textures(
             ps.detect_times.append(dt_detect)
             if k == 0 and (frame.index if sample_by_index else frames_total - 1) in sample_at:
                 # after the timing: the report's cost, not the mapper's
-                kept = sample_frame(frame, calib, backproject, _camera_to_world(frame, ps.track, body_height_m),
+                kept = sample_frame(frame, calib, backproject, _camera_to_world(frame, ps.track(frame.t)[0], body_height_m),
                                     ps.sample_detectors, labels.get(frame.index) if labels else None, distort_rgb)
                 if kept is not None:
                     ps.samples.append(kept)
@@ -422,7 +425,7 @@ def _result(ps: _Pass, grid: GridImage, stream_messages: list[str], frames_total
         origin_xy=(float(grid.origin_xy[0]), float(grid.origin_xy[1])),
         floor_points=pts,
         floor_colors=cols,
-        detector=str(getattr(ps.detector, "name", type(ps.detector).__name__)),
+        detector=ps.name,
         frames_total=frames_total,
         frames_used=ps.frames_used,
         frames_thinned=thinned,
@@ -438,9 +441,9 @@ def _result(ps: _Pass, grid: GridImage, stream_messages: list[str], frames_total
     )
 
 
-def _camera_to_world(frame: RGBDFrame, track: PoseTrack, body_height_m: float) -> np.ndarray:
-    """4x4 pose of the IR optical frame in the world at the frame's depth time."""
-    pose, _ = track(frame.t)
+def _camera_to_world(frame: RGBDFrame, pose: np.ndarray, body_height_m: float) -> np.ndarray:
+    """4x4 pose of the IR optical frame in the world, the body at `pose` (x m, y m, theta rad:
+    the trajectory at the frame's depth time)."""
     x, y, th = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
     T_wb = geometry.body_to_world(x, y, th, frame.roll, frame.pitch, body_height_m)
     return T_wb @ np.asarray(frame.camera_to_body, dtype=np.float64).reshape(4, 4)
@@ -480,9 +483,8 @@ def _place_frame(
     if gap > max_gap:
         ps.skip("outside_trajectory", frame, f"t={frame.t:.3f} is {gap:.2f} s outside the trajectory")
         return False, 0.0, 0.0
-    T_wc = _camera_to_world(frame, ps.track, body_height_m)
+    T_wc = _camera_to_world(frame, pose, body_height_m)
     query = GroundQuery(pts, T_wc, scaled_intrinsics(calib.ir, depth.shape[1], depth.shape[0]))
-    det_name = str(getattr(ps.detector, "name", type(ps.detector).__name__))
 
     t0 = time.perf_counter()
     floor = ps.detector(query)
@@ -495,7 +497,7 @@ def _place_frame(
         truth = np.asarray(truth, dtype=bool)
         if truth.shape == depth.shape:
             truth_at = truth[pts.v, pts.u]
-            ps.detection.setdefault(det_name, DetectionCounts()).add(floor, truth_at)
+            ps.detection.setdefault(ps.name, DetectionCounts()).add(floor, truth_at)
             for name, det in ps.compare.items():
                 ps.detection.setdefault(name, DetectionCounts()).add(det(query), truth_at)
         dt_eval = time.perf_counter() - t1
