@@ -86,8 +86,7 @@ def check_overrides(argv: list[str]) -> str | None:
                 group_choices.append(f"{o.input_line.split('=', 1)[0]}={values[0]}")
         else:
             keys.append(name)
-            if not o.is_delete():
-                values_set.append((name, o))
+            values_set.append((name, o))  # deletions were skipped above
     if not keys:
         return None
     static = static_keys(group_choices)
