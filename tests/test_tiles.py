@@ -208,24 +208,53 @@ def test_coarse_search_by_whole_cell_shifts_picks_what_placing_every_offset_pick
     rng = np.random.default_rng(3)
     n = 6
     maps = TiledMaps(SETTINGS, n, field_sigma_m=0.1, field_radius_m=0.3)
-    for _ in range(4):  # different maps per particle
-        pts, origin = _scan(rng, m=120)
+    for _ in range(4):  # different maps per particle; walls up to the table's edge (it grows to hold them)
+        pts, origin = _scan(rng, m=120, max_r=7.0)
         maps.insert_scan(rng.normal(0.0, [0.2, 0.2, 0.1], (n, 3)), pts, origin)
     m = LikelihoodFieldMatcher(sigma_m=0.1, radius_m=0.3, xy_half_width_m=0.1, xy_step_m=RES, prior_sigma_xy_m=0.05, prior_sigma_yaw_rad=0.1)
-    scan, _ = _scan(rng, m=120)
+    scan, _ = _scan(rng, m=120, max_r=9.0)  # some points beyond the map's edge: the kernels' edge paths
     poses = rng.normal(0.0, [0.15, 0.15, 0.05], (n, 3))
+    far = maps.origin + np.array(maps.table.shape[:0:-1]) * 32 * RES  # the table's (x, y) upper corner
+    assert np.any((scan < maps.origin) | (scan > far))
     shifts, by_yaw, yaws = cell_shifts(m.offsets, maps.res)
     assert len(shifts) == len(m.offsets) == 5 * 5 * 9 and by_yaw.shape == (9, 25)
     out = {}
-    for name, (sh, by, ya) in {"cells": (shifts, by_yaw, yaws), "every": cell_shifts(m.offsets, 0.03)}.items():
+    for name, (sh, _, ya) in {"cells": (shifts, by_yaw, yaws), "every": cell_shifts(m.offsets, 0.03)}.items():
         best, scores = np.empty((n, 3)), np.empty(n)
         tiled_field_search(maps.pool_f, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, poses,
-                           np.ascontiguousarray(scan[::3]), scan, m.offsets, sh, by, ya, 0.025, 0.0125, 4, m.kxy, m.kyaw, best, scores, np.empty(n, dtype=np.int64))
+                           np.ascontiguousarray(scan[::3]), scan, m.offsets, sh, ya, 0.025, 0.0125, 4, m.kxy, m.kyaw, best, scores, np.empty(n, dtype=np.int64))
         out[name] = (best, scores)
     assert len(cell_shifts(m.offsets, 0.03)[0]) == 0  # 0.05 m is not a whole number of 3 cm cells
     np.testing.assert_allclose(out["cells"][0], out["every"][0], rtol=0, atol=1e-12)
     np.testing.assert_allclose(out["cells"][1], out["every"][1], rtol=1e-12)
     assert not np.allclose(out["cells"][0], poses)  # the search did move the particles
+
+
+def test_coarse_sums_by_whole_cell_shifts_equal_scoring_every_offset_up_to_the_map_edge():
+    """Every coarse offset's field sum from the whole-cell kernel equals `tiled_score_field`
+    at that offset, on a real field and on a field of ones out to the table's edge (where
+    the 2 x 2 cells of some shifts leave the map and must add nothing)."""
+    from slamlab.slam.matcher import cell_shifts, offset_grid
+    from slamlab.slam.tiled_match import coarse_scores_by_cells, tiled_score_field
+
+    rng = np.random.default_rng(8)
+    maps = TiledMaps(SETTINGS, 1, field_sigma_m=0.1, field_radius_m=0.3)
+    maps.insert_scan(np.zeros((1, 3)), *_scan(rng, m=200, max_r=6.0))
+    offsets = offset_grid(0.1, RES, 0.1, 0.025)
+    shifts, _, yaws = cell_shifts(offsets, RES)
+    pts, _ = _scan(rng, m=150, max_r=9.0)  # many points off the map
+    half = maps.table.shape[1] * 32 * RES / 2
+    for field in ("real", "ones"):
+        pool = maps.pool_f.copy() if field == "real" else np.ones_like(maps.pool_f)
+        for pose in ([0.1, -0.2, 0.05], [half - 0.1, 0.0, 0.0]):  # centred; at the table's edge
+            px, py = (float(v) for v in maps.origin + half + np.array(pose[:2]))
+            pt = pose[2]
+            sums = coarse_scores_by_cells(pool, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px, py, pt, pts, shifts, yaws)
+            r_lo, c_lo = shifts[:, 0].min(), shifts[:, 1].min()
+            for k, (dx, dy, dyaw) in enumerate(offsets):
+                want = tiled_score_field(pool, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px + dx, py + dy, pt + dyaw, pts)
+                got = sums[shifts[k, 2], shifts[k, 0] - r_lo, shifts[k, 1] - c_lo]
+                assert got == pytest.approx(want, rel=1e-12, abs=1e-12), (field, pose, k)
 
 
 def test_reference_counts_after_inserts_equal_a_full_recount():

@@ -433,10 +433,10 @@ class LikelihoodFieldMatcher(Matcher):
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
         evals = np.empty(len(poses), dtype=np.int64)
-        shifts, by_yaw, yaws = self._cell_shifts(maps.res)
+        shifts, _, yaws = self._cell_shifts(maps.res)
         tiled_field_search(
             maps.pool_f, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, np.ascontiguousarray(poses), coarse, fine,
-            self.offsets, shifts, by_yaw, yaws, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
+            self.offsets, shifts, yaws, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
             self.kxy / prior_scale, self.kyaw / prior_scale, best, scores, evals,
         )
         self._count_field_reads(len(poses), len(coarse), len(fine), evals)

@@ -17,7 +17,7 @@ import math
 import numba
 import numpy as np
 
-from slamlab.slam.tiles import TILE_MASK, TILE_SHIFT
+from slamlab.slam.tiles import EMPTY, TILE_MASK, TILE_SHIFT
 
 
 @numba.njit(cache=True, inline="always")
@@ -89,23 +89,25 @@ def tiled_grid_search(pool_lo, table, thresh, ox, oy, inv_res, poses, pts, offse
 
 
 @numba.njit(cache=True)
-def _coarse_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, pts, offsets, shifts, by_yaw, yaws, kxy, kyaw):
-    """The coarse grid when its x/y offsets are whole cells: index of the best offset.
+def coarse_scores_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, pts, shifts, yaws):
+    """The coarse grid's field sums when its x/y offsets are whole cells: (yaws, rows, cols)
+    over the bounding box of `shifts` (offset k's sum is at [shifts[k, 2], shifts[k, 0] -
+    min row shift, shifts[k, 1] - min col shift]; boxes no offset uses are never read).
 
     For each yaw offset a point is placed once (cell, bilinear weights) and the map window
-    all its x/y shifts touch is read once into `win`; every shift's bilinear value then comes
-    from that small window. Each offset's score adds its points in the same order with the
-    same terms as the general loop, so scores, order and ties are the general loop's (up to
-    the last bits of the placement: the shift is added in cells, not metres)."""
+    all its x/y shifts touch is read once into `win`; each window row is interpolated in x
+    once (`hx`), and every shift's bilinear value comes from two of those. Each offset's sum
+    adds its points in the same order with the same terms as `tiled_score_field`, so it is
+    that sum (up to the last bits of the placement: the shift is added in cells, not metres)."""
     H = tab.shape[0] << TILE_SHIFT
     W = tab.shape[1] << TILE_SHIFT
-    K = offsets.shape[0]
     r_lo = shifts[:, 0].min()
     c_lo = shifts[:, 1].min()
-    wr = shifts[:, 0].max() - r_lo + 2
-    wc = shifts[:, 1].max() - c_lo + 2
-    win = np.empty((wr, wc))
-    score = np.zeros(K)
+    ny = shifts[:, 0].max() - r_lo + 1
+    nx = shifts[:, 1].max() - c_lo + 1
+    win = np.empty((ny + 1, nx + 1))
+    hx = np.empty((ny + 1, nx))
+    score = np.zeros((yaws.shape[0], ny, nx))
     for a in range(yaws.shape[0]):
         c = math.cos(pt + yaws[a])
         s = math.sin(pt + yaws[a])
@@ -116,26 +118,43 @@ def _coarse_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, pts, offsets, shi
             rb = int(math.floor(v))
             fu = u - cb
             fv = v - rb
-            for dr in range(wr):
-                r = rb + r_lo + dr
-                for dc in range(wc):
-                    cc = cb + c_lo + dc
-                    win[dr, dc] = _cell(pool_f, tab, r, cc) if 0 <= r < H and 0 <= cc < W else 0.0
-            for j in range(by_yaw.shape[1]):
-                k = by_yaw[a, j]
-                r0 = rb + shifts[k, 0]
-                c0 = cb + shifts[k, 1]
-                if c0 < 0 or r0 < 0 or c0 + 1 >= W or r0 + 1 >= H:
-                    continue
-                y0 = shifts[k, 0] - r_lo
-                x0 = shifts[k, 1] - c_lo
-                score[k] += (1.0 - fv) * ((1.0 - fu) * win[y0, x0] + fu * win[y0, x0 + 1]) + fv * (
-                    (1.0 - fu) * win[y0 + 1, x0] + fu * win[y0 + 1, x0 + 1]
-                )
+            r0 = rb + r_lo  # the window's first cell
+            c0 = cb + c_lo
+            inside = r0 >= 0 and c0 >= 0 and r0 + ny + 1 <= H and c0 + nx + 1 <= W
+            for dr in range(ny + 1):
+                r = r0 + dr
+                for dc in range(nx + 1):
+                    cc = c0 + dc
+                    if inside or (0 <= r < H and 0 <= cc < W):
+                        win[dr, dc] = _cell(pool_f, tab, r, cc)
+                    else:
+                        win[dr, dc] = 0.0
+                for dc in range(nx):
+                    hx[dr, dc] = (1.0 - fu) * win[dr, dc] + fu * win[dr, dc + 1]
+            if inside:  # every shift's 2 x 2 cells lie on the map (nearly always)
+                for y0 in range(ny):
+                    for x0 in range(nx):
+                        score[a, y0, x0] += (1.0 - fv) * hx[y0, x0] + fv * hx[y0 + 1, x0]
+            else:  # near the map's edge: shifts whose cells leave it add nothing
+                for y0 in range(ny):
+                    for x0 in range(nx):
+                        if 0 <= r0 + y0 < H - 1 and 0 <= c0 + x0 < W - 1:
+                            score[a, y0, x0] += (1.0 - fv) * hx[y0, x0] + fv * hx[y0 + 1, x0]
+    return score
+
+
+@numba.njit(cache=True)
+def _coarse_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, pts, offsets, shifts, yaws, kxy, kyaw):
+    """Index of the best coarse offset (prior included; earlier offsets win ties), from
+    `coarse_scores_by_cells`."""
+    score = coarse_scores_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, pts, shifts, yaws)
+    r_lo = shifts[:, 0].min()
+    c_lo = shifts[:, 1].min()
     best = -1e300
     bk = 0
-    for k in range(K):
-        sc = score[k] - (kxy * (offsets[k, 0] ** 2 + offsets[k, 1] ** 2) + kyaw * offsets[k, 2] ** 2)
+    for k in range(offsets.shape[0]):
+        sc = score[shifts[k, 2], shifts[k, 0] - r_lo, shifts[k, 1] - c_lo]
+        sc -= kxy * (offsets[k, 0] ** 2 + offsets[k, 1] ** 2) + kyaw * offsets[k, 2] ** 2
         if sc > best:
             best = sc
             bk = k
@@ -143,7 +162,7 @@ def _coarse_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, pts, offsets, shi
 
 
 @numba.njit(cache=True)
-def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offsets, shifts, by_yaw, yaws, lin_step, ang_step, levels, kxy, kyaw):
+def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw):
     """One particle: coarse grid, then hill climbing (see `matcher.field_search`). With
     `shifts` (K, 3: rows, cols, yaw index; empty = no) the coarse grid reuses each yaw's
     point placement across its whole-cell x/y offsets (`_coarse_by_cells`)."""
@@ -151,7 +170,7 @@ def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offse
     by = py
     bt = pt
     if offsets.shape[0] > 1 and shifts.shape[0] == offsets.shape[0]:
-        bk = _coarse_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, offsets, shifts, by_yaw, yaws, kxy, kyaw)
+        bk = _coarse_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, offsets, shifts, yaws, kxy, kyaw)
         bx += offsets[bk, 0]
         by += offsets[bk, 1]
         bt += offsets[bk, 2]
@@ -221,13 +240,13 @@ def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offse
 
 
 @numba.njit(cache=True, parallel=True)
-def tiled_field_search(pool_f, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, shifts, by_yaw, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals):
+def tiled_field_search(pool_f, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals):
     """Per particle i, coarse-to-fine likelihood-field matching on its own map `table[i]`;
     `out_evals[i]`: the hill climb's scores of `fine_pts` (for the map-read count)."""
     for i in numba.prange(poses.shape[0]):
         bx, by, bt, cur, n_eval = _climb(
             pool_f, table[i], ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2],
-            coarse_pts, fine_pts, offsets, shifts, by_yaw, yaws, lin_step, ang_step, levels, kxy, kyaw,
+            coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw,
         )
         out_poses[i, 0] = bx
         out_poses[i, 1] = by
