@@ -63,9 +63,20 @@ def tiled_score_field(pool_f, tab, ox, oy, inv_res, x, y, th, pts):
             continue
         fu = u - c0
         fv = v - r0
-        total += (1.0 - fv) * ((1.0 - fu) * _cell(pool_f, tab, r0, c0) + fu * _cell(pool_f, tab, r0, c0 + 1)) + fv * (
-            (1.0 - fu) * _cell(pool_f, tab, r0 + 1, c0) + fu * _cell(pool_f, tab, r0 + 1, c0 + 1)
-        )
+        ir = r0 & TILE_MASK
+        ic = c0 & TILE_MASK
+        if ir != TILE_MASK and ic != TILE_MASK:  # the 2 x 2 cells lie in one tile (31 times in 32)
+            t = tab[r0 >> TILE_SHIFT, c0 >> TILE_SHIFT]
+            f00 = pool_f[t, ir, ic]
+            f01 = pool_f[t, ir, ic + 1]
+            f10 = pool_f[t, ir + 1, ic]
+            f11 = pool_f[t, ir + 1, ic + 1]
+        else:
+            f00 = _cell(pool_f, tab, r0, c0)
+            f01 = _cell(pool_f, tab, r0, c0 + 1)
+            f10 = _cell(pool_f, tab, r0 + 1, c0)
+            f11 = _cell(pool_f, tab, r0 + 1, c0 + 1)
+        total += (1.0 - fv) * ((1.0 - fu) * f00 + fu * f01) + fv * ((1.0 - fu) * f10 + fu * f11)
     return total
 
 
