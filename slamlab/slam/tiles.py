@@ -231,6 +231,10 @@ def tiled_field_update(table, p, pool_lo, pool_f, ref, free, rel, used, thresh, 
                 continue
             r = flips[f, 0]
             c = flips[f, 1]
+            if pool_lo[table[p, r >> TILE_SHIFT, c >> TILE_SHIFT], r & TILE_MASK, c & TILE_MASK] > thresh:
+                # freed by one beam and hit again by another of this scan: the occupied set
+                # did not change here, so the field around it stays as it is
+                continue
             if have and b0 - R <= r < b1 + R and d0 - R <= c < d1 + R:
                 b0 = min(b0, max(r - R, 0))
                 b1 = max(b1, min(r + R + 1, H))
