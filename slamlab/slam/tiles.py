@@ -491,9 +491,12 @@ class TiledMaps:
         and `scan_origin` (2,) the lidar centre, in the body-yaw frame (m)."""
         if len(scan_xy) == 0:
             return
-        which = np.arange(self.n, dtype=np.int64) if which is None else np.asarray(which, dtype=np.int64)
-        # a particle listed twice would be written by two threads at once
-        assert len(np.unique(which)) == len(which), "insert_scan: repeated particle index"
+        if which is None:
+            which = np.arange(self.n, dtype=np.int64)
+        else:
+            which = np.asarray(which, dtype=np.int64)
+            # a particle listed twice would be written by two threads at once
+            assert len(np.unique(which)) == len(which), "insert_scan: repeated particle index"
         poses = np.ascontiguousarray(poses, dtype=np.float64)
         pts = np.ascontiguousarray(scan_xy, dtype=np.float64)
         origin = np.ascontiguousarray(scan_origin, dtype=np.float64)
@@ -530,7 +533,8 @@ class TiledMaps:
         replaced lose one reference each (returning to the free list at zero). The same counts
         a full `_recount` over the tables gives, without reading the tables."""
         # positions in the free list of the tiles taken: the first used[j] of particle j's slice
-        pos = np.concatenate([np.zeros(0, np.int64), *(np.arange(a, a + u) for a, u in zip(starts[:-1], used))])
+        first = np.repeat(starts[:-1], used)  # each taken tile's slice start ...
+        pos = first + np.arange(len(first)) - np.repeat(np.cumsum(used) - used, used)  # ... plus its rank in the slice
         gone = released[pos]
         gone = gone[gone != EMPTY]
         np.subtract.at(self.ref, gone, 1)
