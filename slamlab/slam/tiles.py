@@ -10,7 +10,9 @@ every resample is too slow and too big, so cells live in fixed square tiles of
 - A tile may be shared by many particles (after resampling, children share their parent's
   tiles). `refcount[t]` counts the table entries that point at tile t. A particle's first
   write into a tile it shares (or into the empty tile) copies that tile to a fresh one from
-  the free list (copy on write); its siblings and parent keep the old tile.
+  the free list (copy on write); its siblings and parent keep the old tile. An update that
+  leaves a cell's value as it is (free space already at the lower clamp, a wall at the
+  upper one) is no write: well-mapped open space stays shared between particles.
 - Resampling copies the small tables (N x tiles), never cells, and recounts references;
   tiles no particle points at any more go back to the free list.
 - A matching read is two flat array lookups, `pool[table[p, r >> 5, c >> 5], r & 31, c & 31]`,
@@ -79,13 +81,15 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, rel, used,
                   r0, c0, rows, cols, l_occ, l_free, lmin, lmax, thresh, flips):
     """Ray-cast one scan into particle p's map: cells strictly before each end get `l_free`,
     end cells `l_occ` (all free updates first, as `raycast.raycast_update`), clamped to
-    [lmin, lmax]. Cells whose `lo > thresh` state changes are appended to `flips` (K, 3:
+    [lmin, lmax]. A cell the update leaves as it is (at a clamp) is not written, so a shared
+    tile is copied only when one of its cells really changes. Cells whose `lo > thresh` state changes are appended to `flips` (K, 3:
     row, col, 1 = became occupied / 0 = became free); returns their count. Cells are given
     in table coordinates and must lie inside the table."""
     nflip = 0
     last_tr = -1
     last_tc = -1
-    t = 0
+    t = EMPTY
+    own = False  # tile t is p's alone (writable in place)
     for k in range(rows.shape[0]):
         r1 = rows[k]
         c1 = cols[k]
@@ -100,7 +104,8 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, rel, used,
             tr = r >> TILE_SHIFT
             tc = c >> TILE_SHIFT
             if tr != last_tr or tc != last_tc:
-                t = _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, rel, used)
+                t = table[p, tr, tc]
+                own = t != EMPTY and ref[t] == 1
                 last_tr = tr
                 last_tc = tc
             ir = r & TILE_MASK
@@ -109,7 +114,11 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, rel, used,
             new = old + l_free
             if new < lmin:
                 new = lmin
-            pool_lo[t, ir, ic] = new
+            if new != old:  # a cell already at the clamp changes nothing: its tile stays shared
+                if not own:
+                    t = _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, rel, used)
+                    own = True
+                pool_lo[t, ir, ic] = new
             if old > thresh and not new > thresh:
                 flips[nflip, 0] = r
                 flips[nflip, 1] = c
@@ -125,14 +134,16 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, rel, used,
     for k in range(rows.shape[0]):
         r = rows[k]
         c = cols[k]
-        t = _writable(table, p, r >> TILE_SHIFT, c >> TILE_SHIFT, pool_lo, pool_f, has_field, ref, free, rel, used)
+        t = table[p, r >> TILE_SHIFT, c >> TILE_SHIFT]
         ir = r & TILE_MASK
         ic = c & TILE_MASK
         old = pool_lo[t, ir, ic]
         new = old + l_occ
         if new > lmax:
             new = lmax
-        pool_lo[t, ir, ic] = new
+        if new != old:
+            t = _writable(table, p, r >> TILE_SHIFT, c >> TILE_SHIFT, pool_lo, pool_f, has_field, ref, free, rel, used)
+            pool_lo[t, ir, ic] = new
         if new > thresh and not old > thresh:
             flips[nflip, 0] = r
             flips[nflip, 1] = c
