@@ -72,6 +72,30 @@ def test_resampled_children_share_tiles_until_one_writes():
         assert maps.ref[t] == (maps.table == t).sum()
 
 
+def test_updates_that_change_no_cell_keep_tiles_shared():
+    """Copy on *change*: once the same scan from the same pose has driven its cells to the
+    clamps (free space at clamp_min, walls at clamp_max), inserting it again into resampled
+    children changes no value, so no tile is copied; a scan from another pose changes cells
+    and copies only tiles, leaving the siblings' maps as they were."""
+    maps = TiledMaps(SETTINGS, 3, field_sigma_m=0.1, field_radius_m=0.3)
+    # a round room: no beam crosses another's end cell (a cell freed and hit in one scan is
+    # written twice, and its tile copied, even when its value ends where it was)
+    a = np.linspace(-np.pi, np.pi, 90, endpoint=False)
+    pts, origin = 3.0 * np.stack([np.cos(a), np.sin(a)], axis=1), np.zeros(2)
+    pose = np.zeros((3, 3))
+    for _ in range(20):  # 20 x -0.4 and 20 x 0.85 reach the +-5 clamps
+        maps.insert_scan(pose, pts, origin, which=np.array([0]))
+    maps.share_all_from(0)
+    held, taken = maps.tiles_in_use, maps.tiles_taken
+    before = _snapshot(maps)
+    maps.insert_scan(pose, pts, origin)
+    assert (maps.tiles_in_use, maps.tiles_taken) == (held, taken)
+    assert all(np.array_equal(b[0], a[0]) and np.array_equal(b[1], a[1]) for b, a in zip(before, _snapshot(maps)))
+    maps.insert_scan(np.array([[0.3, 0.2, 0.4], [0, 0, 0], [0, 0, 0]]), pts, origin, which=np.array([0]))
+    assert maps.tiles_taken > taken and not np.array_equal(maps.table[0], maps.table[1])
+    assert np.array_equal(maps.dense(1), before[1][0]) and np.array_equal(maps.dense(2, "field"), before[2][1])
+
+
 def test_shared_tiles_are_counted_once_in_memory():
     rng = np.random.default_rng(2)
     one = TiledMaps(SETTINGS, 1, field_sigma_m=0.1, field_radius_m=0.3)
