@@ -105,7 +105,7 @@ def test_shared_tiles_are_counted_once_in_memory():
     many.insert_scan(np.zeros((50, 3)), pts, origin, which=np.array([0]))
     many.share_all_from(0)
     assert many.tiles_in_use == one.tiles_in_use > 0
-    tile_bytes = TILE * TILE * 4 * 2  # log-odds + field, float32
+    tile_bytes = TILE * TILE * (4 + 1)  # log-odds float32 + field one-byte codes
     assert many.memory_mb() == pytest.approx((one.tiles_in_use * tile_bytes + many.table.nbytes) / 1e6)
     # 50 particles each writing their own scan hold about 50 maps' worth of changed tiles
     many.insert_scan(rng.normal(0, 0.3, (50, 3)), pts, origin)
@@ -245,7 +245,7 @@ def test_coarse_search_by_whole_cell_shifts_picks_what_placing_every_offset_pick
     out = {}
     for name, (sh, _, ya) in {"cells": (shifts, by_yaw, yaws), "every": cell_shifts(m.offsets, 0.03)}.items():
         best, scores = np.empty((n, 3)), np.empty(n)
-        tiled_field_search(maps.pool_f, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, poses,
+        tiled_field_search(maps.pool_f, maps.field_lut, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, poses,
                            np.ascontiguousarray(scan[::3]), scan, m.offsets, sh, ya, 0.025, 0.0125, 4, m.kxy, m.kyaw, best, scores, np.empty(n, dtype=np.int64))
         out[name] = (best, scores)
     assert len(cell_shifts(m.offsets, 0.03)[0]) == 0  # 0.05 m is not a whole number of 3 cm cells
@@ -269,14 +269,15 @@ def test_coarse_sums_by_whole_cell_shifts_equal_scoring_every_offset_up_to_the_m
     pts, _ = _scan(rng, m=150, max_r=9.0)  # many points off the map
     half = maps.table.shape[1] * 32 * RES / 2
     for field in ("real", "ones"):
-        pool = maps.pool_f.copy() if field == "real" else np.ones_like(maps.pool_f)
+        # "ones": every cell holds the top code (the kernel's centre value, 1.0)
+        pool = maps.pool_f.copy() if field == "real" else np.full_like(maps.pool_f, len(maps.field_lut) - 1)
         for pose in ([0.1, -0.2, 0.05], [half - 0.1, 0.0, 0.0]):  # centred; at the table's edge
             px, py = (float(v) for v in maps.origin + half + np.array(pose[:2]))
             pt = pose[2]
-            sums = coarse_scores_by_cells(pool, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px, py, pt, pts, shifts, yaws)
+            sums = coarse_scores_by_cells(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px, py, pt, pts, shifts, yaws)
             r_lo, c_lo = shifts[:, 0].min(), shifts[:, 1].min()
             for k, (dx, dy, dyaw) in enumerate(offsets):
-                want = tiled_score_field(pool, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px + dx, py + dy, pt + dyaw, pts)
+                want = tiled_score_field(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px + dx, py + dy, pt + dyaw, pts)
                 got = sums[shifts[k, 2], shifts[k, 0] - r_lo, shifts[k, 1] - c_lo]
                 assert got == pytest.approx(want, rel=1e-12, abs=1e-12), (field, pose, k)
 
@@ -327,3 +328,18 @@ def test_tile_pool_grows_in_place_and_keeps_its_tiles():
     assert maps.pool_lo.shape[0] > 2
     if sys.platform.startswith("linux"):
         assert maps._pools["lo"].copies == 0 and maps._pools["f"].copies == 0
+
+
+def test_field_codes_decode_to_the_kernel_and_keep_its_order():
+    """One-byte field cells: decoding a code gives the float32 kernel value bit for bit, 0 is
+    code 0 (the empty tile), and codes order like values (the incremental max runs on codes)."""
+    from slamlab.slam.raycast import gaussian_kernel
+    from slamlab.slam.tiles import field_codes
+
+    for sigma, radius in ((2.0, 6), (0.7, 3), (6.0, 22)):
+        kernel = gaussian_kernel(sigma, radius)
+        codes, lut = field_codes(kernel)
+        assert codes.dtype == np.uint8 and lut[0] == 0.0 and np.all(np.diff(lut) > 0)
+        assert np.array_equal(lut[codes], kernel)
+        a, b = kernel.ravel()[:, None], kernel.ravel()[None, :]
+        assert np.array_equal(a > b, codes.ravel()[:, None] > codes.ravel()[None, :])

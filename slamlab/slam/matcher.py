@@ -435,7 +435,7 @@ class LikelihoodFieldMatcher(Matcher):
         evals = np.empty(len(poses), dtype=np.int64)
         shifts, _, yaws = self._cell_shifts(maps.res)
         tiled_field_search(
-            maps.pool_f, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, np.ascontiguousarray(poses), coarse, fine,
+            maps.pool_f, maps.field_lut, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, np.ascontiguousarray(poses), coarse, fine,
             self.offsets, shifts, yaws, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
             self.kxy / prior_scale, self.kyaw / prior_scale, best, scores, evals,
         )

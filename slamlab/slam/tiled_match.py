@@ -2,7 +2,8 @@
 
 The same two searches as `matcher.py` (hit counting over an offset grid; likelihood field
 with a coarse grid and hill climbing), but particle i reads its own map through its tile
-table: a cell read is `pool[table[i, r >> 5, c >> 5], r & 31, c & 31]`. Particles are
+table: a cell read is `pool[table[i, r >> 5, c >> 5], r & 31, c & 31]` (a field cell is a
+one-byte code, decoded as `lut[code]`: see `tiles.py`). Particles are
 independent, so the outer loop runs on all cores (`numba.prange`); each particle's result
 depends only on its own inputs, so results do not depend on the number of threads.
 
@@ -45,7 +46,7 @@ def tiled_score_hits(pool_lo, tab, thresh, ox, oy, inv_res, x, y, th, pts):
 
 
 @numba.njit(cache=True)
-def tiled_score_field(pool_f, tab, ox, oy, inv_res, x, y, th, pts):
+def tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts):
     """Sum of the likelihood field (bilinear between cell centres) at the points."""
     H = tab.shape[0] << TILE_SHIFT
     W = tab.shape[1] << TILE_SHIFT
@@ -67,15 +68,15 @@ def tiled_score_field(pool_f, tab, ox, oy, inv_res, x, y, th, pts):
         ic = c0 & TILE_MASK
         if ir != TILE_MASK and ic != TILE_MASK:  # the 2 x 2 cells lie in one tile (31 times in 32)
             t = tab[r0 >> TILE_SHIFT, c0 >> TILE_SHIFT]
-            f00 = pool_f[t, ir, ic]
-            f01 = pool_f[t, ir, ic + 1]
-            f10 = pool_f[t, ir + 1, ic]
-            f11 = pool_f[t, ir + 1, ic + 1]
+            f00 = lut[pool_f[t, ir, ic]]
+            f01 = lut[pool_f[t, ir, ic + 1]]
+            f10 = lut[pool_f[t, ir + 1, ic]]
+            f11 = lut[pool_f[t, ir + 1, ic + 1]]
         else:
-            f00 = _cell(pool_f, tab, r0, c0)
-            f01 = _cell(pool_f, tab, r0, c0 + 1)
-            f10 = _cell(pool_f, tab, r0 + 1, c0)
-            f11 = _cell(pool_f, tab, r0 + 1, c0 + 1)
+            f00 = lut[_cell(pool_f, tab, r0, c0)]
+            f01 = lut[_cell(pool_f, tab, r0, c0 + 1)]
+            f10 = lut[_cell(pool_f, tab, r0 + 1, c0)]
+            f11 = lut[_cell(pool_f, tab, r0 + 1, c0 + 1)]
         total += (1.0 - fv) * ((1.0 - fu) * f00 + fu * f01) + fv * ((1.0 - fu) * f10 + fu * f11)
     return total
 
@@ -100,7 +101,7 @@ def tiled_grid_search(pool_lo, table, thresh, ox, oy, inv_res, poses, pts, offse
 
 
 @numba.njit(cache=True)
-def coarse_scores_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, pts, shifts, yaws):
+def coarse_scores_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, pts, shifts, yaws):
     """The coarse grid's field sums when its x/y offsets are whole cells: (yaws, rows, cols)
     over the bounding box of `shifts` (offset k's sum is at [shifts[k, 2], shifts[k, 0] -
     min row shift, shifts[k, 1] - min col shift]; boxes no offset uses are never read).
@@ -137,7 +138,7 @@ def coarse_scores_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, pts, shifts
                 for dc in range(nx + 1):
                     cc = c0 + dc
                     if inside or (0 <= r < H and 0 <= cc < W):
-                        win[dr, dc] = _cell(pool_f, tab, r, cc)
+                        win[dr, dc] = lut[_cell(pool_f, tab, r, cc)]
                     else:
                         win[dr, dc] = 0.0
                 for dc in range(nx):
@@ -155,10 +156,10 @@ def coarse_scores_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, pts, shifts
 
 
 @numba.njit(cache=True)
-def _coarse_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, pts, offsets, shifts, yaws, kxy, kyaw):
+def _coarse_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, pts, offsets, shifts, yaws, kxy, kyaw):
     """Index of the best coarse offset (prior included; earlier offsets win ties), from
     `coarse_scores_by_cells`."""
-    score = coarse_scores_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, pts, shifts, yaws)
+    score = coarse_scores_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, pts, shifts, yaws)
     r_lo = shifts[:, 0].min()
     c_lo = shifts[:, 1].min()
     best = -1e300
@@ -173,7 +174,7 @@ def _coarse_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, pts, offsets, shi
 
 
 @numba.njit(cache=True)
-def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw):
+def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw):
     """One particle: coarse grid, then hill climbing (see `matcher.field_search`). With
     `shifts` (K, 3: rows, cols, yaw index; empty = no) the coarse grid reuses each yaw's
     point placement across its whole-cell x/y offsets (`_coarse_by_cells`)."""
@@ -181,7 +182,7 @@ def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offse
     by = py
     bt = pt
     if offsets.shape[0] > 1 and shifts.shape[0] == offsets.shape[0]:
-        bk = _coarse_by_cells(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, offsets, shifts, yaws, kxy, kyaw)
+        bk = _coarse_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, offsets, shifts, yaws, kxy, kyaw)
         bx += offsets[bk, 0]
         by += offsets[bk, 1]
         bt += offsets[bk, 2]
@@ -189,7 +190,7 @@ def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offse
         best = -1e300
         bk = 0
         for k in range(offsets.shape[0]):
-            sc = tiled_score_field(pool_f, tab, ox, oy, inv_res, px + offsets[k, 0], py + offsets[k, 1], pt + offsets[k, 2], coarse_pts)
+            sc = tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, px + offsets[k, 0], py + offsets[k, 1], pt + offsets[k, 2], coarse_pts)
             sc -= kxy * (offsets[k, 0] ** 2 + offsets[k, 1] ** 2) + kyaw * offsets[k, 2] ** 2
             if sc > best:
                 best = sc
@@ -197,7 +198,7 @@ def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offse
         bx += offsets[bk, 0]
         by += offsets[bk, 1]
         bt += offsets[bk, 2]
-    cur = tiled_score_field(pool_f, tab, ox, oy, inv_res, bx, by, bt, fine_pts)
+    cur = tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, bx, by, bt, fine_pts)
     n_eval = 1
     cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
     ls = lin_step
@@ -228,7 +229,7 @@ def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offse
                     ct += as_
                 else:
                     ct -= as_
-                sc = tiled_score_field(pool_f, tab, ox, oy, inv_res, cx, cy, ct, fine_pts)
+                sc = tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, cx, cy, ct, fine_pts)
                 n_eval += 1
                 sc -= kxy * ((cx - px) ** 2 + (cy - py) ** 2) + kyaw * (ct - pt) ** 2
                 if sc > ms:
@@ -251,12 +252,12 @@ def _climb(pool_f, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offse
 
 
 @numba.njit(cache=True, parallel=True)
-def tiled_field_search(pool_f, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals):
+def tiled_field_search(pool_f, lut, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals):
     """Per particle i, coarse-to-fine likelihood-field matching on its own map `table[i]`;
     `out_evals[i]`: the hill climb's scores of `fine_pts` (for the map-read count)."""
     for i in numba.prange(poses.shape[0]):
         bx, by, bt, cur, n_eval = _climb(
-            pool_f, table[i], ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2],
+            pool_f, lut, table[i], ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2],
             coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw,
         )
         out_poses[i, 0] = bx

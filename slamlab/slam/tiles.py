@@ -28,6 +28,11 @@ The likelihood field (a Gaussian of the distance to the nearest occupied cell, a
 `grid.OccupancyGrid`) is kept per particle too, updated incrementally: a cell that becomes
 occupied raises the field around it (max with the kernel); a cell that stops being occupied
 has the field recomputed within the kernel radius. The result equals a full recomputation.
+Field cells are one byte: every field value is one of the kernel's values (the kernel at the
+nearest occupied cell, or 0), so a cell holds that value's rank among them (`field_codes`)
+and readers decode it through `field_lut`; the ranks keep the values' order, so the
+incremental max works on the codes, and a decoded read is the float32 a float field would
+hold, bit for bit (a field tile is 1 KB instead of 4).
 """
 
 from __future__ import annotations
@@ -48,7 +53,6 @@ TILE_SHIFT = 5
 TILE = 1 << TILE_SHIFT  # cells per tile side
 TILE_MASK = TILE - 1
 EMPTY = 0  # pool index of the shared all-zero tile
-_TILE_BYTES = TILE * TILE * 4  # one float32 tile
 
 
 @numba.njit(cache=True, inline="always")
@@ -196,7 +200,7 @@ def _recompute(table, p, pool_lo, pool_f, ref, free, rel, used, thresh, kernel, 
     H = table.shape[1] * TILE
     W = table.shape[2] * TILE
     R = kernel.shape[0] // 2
-    new = np.zeros((b1 - b0, d1 - d0), dtype=np.float32)
+    new = np.zeros((b1 - b0, d1 - d0), dtype=kernel.dtype)
     for r in range(max(b0 - R, 0), min(b1 + R, H)):
         for c in range(max(d0 - R, 0), min(d1 + R, W)):
             if pool_lo[table[p, r >> TILE_SHIFT, c >> TILE_SHIFT], r & TILE_MASK, c & TILE_MASK] > thresh:
@@ -368,31 +372,42 @@ def _anonymous_map(nbytes: int) -> mmap.mmap:
     return mmap.mmap(-1, nbytes, flags=private | mmap.MAP_ANONYMOUS)
 
 
+def field_codes(kernel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One-byte codes for a float32 field kernel: (codes uint8 like `kernel`, lut float32)
+    with lut[codes] == kernel, lut sorted ascending and lut[0] == 0 (the empty tile)."""
+    lut = np.unique(np.concatenate([np.zeros(1, np.float32), kernel.ravel()]).astype(np.float32))
+    if len(lut) > 256:
+        raise ConfigError("matcher.radius_m", f"the field kernel has {len(lut)} distinct values; at most 256 fit the one-byte field tiles")
+    return np.searchsorted(lut, kernel).astype(np.uint8), lut
+
+
 class _TilePool:
-    """`array` (capacity, TILE, TILE) float32 tiles in an anonymous memory map (zero-filled).
+    """`array` (capacity, TILE, TILE) tiles of `dtype` in an anonymous memory map (zero-filled).
 
     Why a map: `grow` resizes it in place (mremap on Linux moves page tables, not bytes), so a
     growing pool is never held twice; a pool of 2 GB of tiles used to peak at 4 GB while a
     doubled copy was filled. Where a map cannot be resized (other platforms, or a view of the
     array still held elsewhere) it falls back to a copy into a new map."""
 
-    def __init__(self, capacity: int) -> None:
-        self._mm = _anonymous_map(capacity * _TILE_BYTES)
+    def __init__(self, capacity: int, dtype: type = np.float32) -> None:
+        self.dtype = np.dtype(dtype)
+        self.tile_bytes = TILE * TILE * self.dtype.itemsize
+        self._mm = _anonymous_map(capacity * self.tile_bytes)
         self.array = self._view()
         self.copies = 0  # growths that had to copy (tests; 0 on Linux in a run)
 
     def _view(self) -> np.ndarray:
-        return np.frombuffer(self._mm, dtype=np.float32).reshape(-1, TILE, TILE)
+        return np.frombuffer(self._mm, dtype=self.dtype).reshape(-1, TILE, TILE)
 
     def grow(self, capacity: int) -> None:
         old_tiles = self.array.shape[0]
         self.array = None  # our own view of the map must go before it can be resized
         try:
-            self._mm.resize(capacity * _TILE_BYTES)
+            self._mm.resize(capacity * self.tile_bytes)
         except (BufferError, OSError, SystemError, ValueError):
-            old = np.frombuffer(self._mm, dtype=np.float32).reshape(-1, TILE, TILE)
-            mm = _anonymous_map(capacity * _TILE_BYTES)
-            np.frombuffer(mm, dtype=np.float32).reshape(-1, TILE, TILE)[:old_tiles] = old
+            old = np.frombuffer(self._mm, dtype=self.dtype).reshape(-1, TILE, TILE)
+            mm = _anonymous_map(capacity * self.tile_bytes)
+            np.frombuffer(mm, dtype=self.dtype).reshape(-1, TILE, TILE)[:old_tiles] = old
             self._mm = mm
             self.copies += 1
         self.array = self._view()
@@ -401,8 +416,9 @@ class _TilePool:
 class TiledMaps:
     """N particle maps in shared copy-on-write tiles (see module doc).
 
-    `field_sigma_m` > 0 keeps a likelihood field per particle (values in [0, 1]), as
-    `grid.OccupancyGrid`. All maps start empty, centred at `center_xy` (m)."""
+    `field_sigma_m` > 0 keeps a likelihood field per particle (values in [0, 1], as
+    `grid.OccupancyGrid`; stored as one-byte codes, read as `field_lut[code]`). All maps
+    start empty, centred at `center_xy` (m)."""
 
     def __init__(
         self,
@@ -424,14 +440,16 @@ class TiledMaps:
         self.origin = np.array([center_xy[0] - side * TILE * self.res / 2.0, center_xy[1] - side * TILE * self.res / 2.0])
         self.table = np.zeros((self.n, side, side), dtype=np.int32)
         self.has_field = field_sigma_m > 0
-        self.kernel = np.zeros((1, 1), dtype=np.float32)
+        # the field kernel as codes (what the update kernels write) and the codes' values
+        self.kernel = np.zeros((1, 1), dtype=np.uint8)
+        self.field_lut = np.zeros(1, dtype=np.float32)
         if self.has_field:
             radius = max(int(np.ceil(max(field_radius_m, field_sigma_m) / self.res)), 1)
             if radius + 1 >= (3 * TILE) // 4:
                 raise ConfigError("matcher.radius_m (or sigma_m)", f"must stay below {(3 * TILE) // 4 - 1} cells ({((3 * TILE) // 4 - 1) * self.res:g} m) at this resolution")
-            self.kernel = gaussian_kernel(field_sigma_m / self.res, radius)
+            self.kernel, self.field_lut = field_codes(gaussian_kernel(field_sigma_m / self.res, radius))
         cap = max(int(initial_tiles), 2)
-        self._pools = {"lo": _TilePool(cap), "f": _TilePool(cap if self.has_field else 1)}
+        self._pools = {"lo": _TilePool(cap, np.float32), "f": _TilePool(cap if self.has_field else 1, np.uint8)}
         self.ref = np.zeros(cap, dtype=np.int32)
         self.free = np.arange(1, cap, dtype=np.int32)  # tile ids no table refers to (not 0)
         self.peak_tiles = 0
@@ -475,7 +493,8 @@ class TiledMaps:
 
     @property
     def pool_f(self) -> np.ndarray:
-        """Likelihood-field tiles, as `pool_lo` (one unused tile without a field)."""
+        """Likelihood-field tiles, as `pool_lo` but uint8 codes of `field_lut` (one unused tile
+        without a field)."""
         return self._pools["f"].array
 
     @property
@@ -580,7 +599,8 @@ class TiledMaps:
 
     # ---- reading ------------------------------------------------------------------------
     def bytes_per_tile(self) -> int:
-        return TILE * TILE * 4 * (2 if self.has_field else 1)
+        """Bytes of one tile position: its log-odds tile plus, with a field, its field tile."""
+        return sum(pool.tile_bytes for name, pool in self._pools.items() if name == "lo" or self.has_field)
 
     def memory_mb(self, tiles: int | None = None) -> float:
         """MB held by the maps: distinct tiles (shared ones once) plus the tables."""
@@ -588,9 +608,11 @@ class TiledMaps:
         return (n * self.bytes_per_tile() + self.table.nbytes) / 1e6
 
     def dense(self, p: int, which: str = "log_odds") -> np.ndarray:
-        """Particle p's whole table area as one float32 array [H, W] (tests, small maps)."""
+        """Particle p's whole table area as one float32 array [H, W] (tests, small maps);
+        `which="field"` decodes the field's codes."""
         pool = self.pool_lo if which == "log_odds" else self.pool_f
-        return pool[self.table[p]].transpose(0, 2, 1, 3).reshape(self.shape)
+        cells = pool[self.table[p]].transpose(0, 2, 1, 3).reshape(self.shape)
+        return cells if which == "log_odds" else self.field_lut[cells]
 
     def to_image(self, p: int) -> GridImage:
         """Particle p's log-odds map, cropped to the tiles it has written (float32 GridImage)."""
