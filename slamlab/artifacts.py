@@ -32,26 +32,43 @@ def occupancy_probability(log_odds: np.ndarray) -> np.ndarray:
     return 1.0 / (1.0 + np.exp(-np.asarray(log_odds, dtype=np.float64)))
 
 
+BAND_ROWS = 256  # map rows converted at a time: float64 temporaries of a whole building's map are GBs
+
+
 def map_image(log_odds: np.ndarray) -> np.ndarray:
     """uint8 image in map_server colours, top row = highest y: 0 occupied, 254 free, 205 unknown."""
-    p = occupancy_probability(log_odds)
-    img = np.full(p.shape, 205, dtype=np.uint8)
-    img[p > OCCUPIED_THRESH] = 0
-    img[p < FREE_THRESH] = 254
+    img = np.full(log_odds.shape, 205, dtype=np.uint8)
+    for r in range(0, log_odds.shape[0], BAND_ROWS):
+        p = occupancy_probability(log_odds[r:r + BAND_ROWS])
+        band = img[r:r + BAND_ROWS]
+        band[p > OCCUPIED_THRESH] = 0
+        band[p < FREE_THRESH] = 254
     return np.flipud(img)
+
+
+def map_png_rgba(log_odds: np.ndarray) -> np.ndarray:
+    """map.png's (H, W, 4) uint8 pixels, top row = highest y: grey levels of 1 - P(occupied)
+    (`grey_rgba`), so uncertain cells are visible; converted band by band."""
+    from slamlab.io.png import grey_rgba
+
+    h = log_odds.shape[0]
+    rgba = np.empty(log_odds.shape + (4,), dtype=np.uint8)
+    for r in range(0, h, BAND_ROWS):
+        band = log_odds[r:r + BAND_ROWS]
+        # rows r .. r + len(band) land flipped at the bottom-up position
+        rgba[h - r - len(band):h - r] = grey_rgba(np.flipud(1.0 - occupancy_probability(band)))
+    return rgba
 
 
 def write_map(run_dir: Path, grid: GridImage) -> None:
     """map.png (for people), map.pgm + map.yaml (ROS map_server), map_logodds.npz (raw)."""
-    from slamlab.io.png import grey_rgba, write_png
+    from slamlab.io.png import write_png
 
     run_dir = Path(run_dir)
     img = map_image(grid.data)
-    # map.png: grey levels from the probability itself so uncertain cells are visible
-    # (Pillow alone; the bytes plt.imsave(cmap="gray", vmin=0, vmax=1) wrote before).
-    shade = np.flipud(1.0 - occupancy_probability(grid.data))
+    # map.png: Pillow alone; the bytes plt.imsave(cmap="gray", vmin=0, vmax=1) wrote before
     with atomic_path(run_dir / RunFile.MAP_PNG) as tmp:
-        write_png(tmp, grey_rgba(shade))
+        write_png(tmp, map_png_rgba(grid.data))
     h, w = img.shape
     write_bytes(run_dir / RunFile.MAP_PGM, f"P5\n{w} {h}\n255\n".encode("ascii") + img.tobytes())
     ox, oy = grid.origin_xy
@@ -66,7 +83,7 @@ def write_map(run_dir: Path, grid: GridImage) -> None:
     )
     write_npz(
         run_dir / RunFile.MAP_LOGODDS,
-        data=grid.data.astype(np.float32),
+        data=np.asarray(grid.data, dtype=np.float32),  # no copy of a float32 map
         resolution_m=np.float64(grid.resolution_m),
         origin_xy=np.asarray(grid.origin_xy, dtype=np.float64),
     )

@@ -107,13 +107,13 @@ def test_a_sweep_whose_jobs_all_finish_exits_0(tmp_path, sim_cache):
 
 
 def test_each_sweep_job_reports_its_own_peak_memory(tmp_path, sim_cache):
-    # job 0 holds a map of 25x the cells of job 1; run in one process, one after the other
+    # job 0 holds a map of ~50x the cells of job 1; run in one process, one after the other
     sweep = tmp_path / "sweep"
-    p = start(["-m", "map.resolution_m=0.01,0.05", *QUICK, "steps.max_scans=100", f"hydra.sweep.dir={sweep}"],
+    p = start(["-m", "map.resolution_m=0.007,0.05", *QUICK, "steps.max_scans=100", f"hydra.sweep.dir={sweep}"],
               tmp_path, sim_cache)
     _, err = p.communicate(timeout=900)
     assert p.returncode == 0, err
     big, small = (json.loads((sweep / job / "metrics.json").read_text()) for job in ("0", "1"))
     assert big["peak_memory_scope"] == small["peak_memory_scope"] == "run"
     # the process's lifetime peak would make job 1 report at least job 0's peak
-    assert small["peak_memory_mb"] < big["peak_memory_mb"] - 150
+    assert small["peak_memory_mb"] < big["peak_memory_mb"] - 150, (small["peak_memory_mb"], big["peak_memory_mb"])

@@ -36,14 +36,16 @@ NEAR_M = 0.5  # crossings this close to a beam's own hit (m) are not counted as 
 MIN_HITS = 4  # a cell is a wall of the replay when the sampled scans hit it this often
 
 
-def _dilate(mask: np.ndarray) -> np.ndarray:
-    """`mask` or any of its 8 neighbours (bool, same shape)."""
-    out = mask.copy()
-    out[1:, :] |= mask[:-1, :]
-    out[:-1, :] |= mask[1:, :]
-    rows = out.copy()
-    out[:, 1:] |= rows[:, :-1]
-    out[:, :-1] |= rows[:, 1:]
+def _near_wall(log_odds: np.ndarray, threshold: float, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Whether cell (rows[k], cols[k]) or one of its 8 neighbours (on the map) is occupied:
+    looked up at the endpoints only (a dilated copy of a building's map is 10^8 cells)."""
+    H, W = log_odds.shape
+    out = np.zeros(len(rows), dtype=bool)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            r, c = rows + dr, cols + dc
+            ok = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+            out[ok] |= log_odds[r[ok], c[ok]] > threshold
     return out
 
 
@@ -62,9 +64,9 @@ def consistency_metrics(
     {"t" s, "scan_index", "hit_fraction"} of the scored scans)."""
     n = len(poses)
     pick = np.unique(np.linspace(0, n - 1, min(n, max_scans)).round().astype(np.int64)) if n else np.zeros(0, np.int64)
-    occupied = _dilate(log_odds.data > settings.occupied_threshold)
-    H, W = occupied.shape
-    hits = np.zeros((H, W), dtype=np.int32)
+    H, W = log_odds.data.shape
+    hit_cells = []  # row * W + col of each sampled endpoint on the map (a building's map has
+    # 10^8 cells: hits are counted from this list, not in another map-sized array)
     passes = np.zeros((H, W), dtype=np.float32)  # counted by the map's own ray walk
     no_flips = np.zeros(4, dtype=np.int64)
     inv = 1.0 / log_odds.resolution_m
@@ -84,9 +86,9 @@ def consistency_metrics(
         world = points_to_world(pts.xy, poses[i])
         rows, cols, inside = cells(world)
         on_wall = np.zeros(len(rows), dtype=bool)
-        on_wall[inside] = occupied[rows[inside], cols[inside]]
+        on_wall[inside] = _near_wall(log_odds.data, settings.occupied_threshold, rows[inside], cols[inside])
         frac[j] = float(on_wall.mean())
-        np.add.at(hits, (rows[inside], cols[inside]), 1)
+        hit_cells.append(rows[inside] * W + cols[inside])
         # crossings: each beam walked up to NEAR_M short of its hit (a beam grazing a wall
         # walks through that wall's own cells just before it, which is no conflict)
         sensor = points_to_world(pts.origin.reshape(1, 2), poses[i])
@@ -101,8 +103,10 @@ def consistency_metrics(
         # +1 on every cell of the shortened beam, its end included (free and hit deltas both 1)
         raycast_update(passes, int(s_row[0]), int(s_col[0]), e_row[e_in], e_col[e_in],
                        1.0, 1.0, 0.0, 3.0e38, 0.5, no_flips)
+    cell, hits = np.unique(np.concatenate(hit_cells), return_counts=True) if hit_cells else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     walls = hits >= MIN_HITS
-    conflict = float(np.mean(passes[walls] >= 2 * hits[walls])) if walls.any() else float("nan")
+    crossed = passes.ravel()[cell[walls]]
+    conflict = float(np.mean(crossed >= 2 * hits[walls])) if walls.any() else float("nan")
     scored = frac[np.isfinite(frac)]
     summary: dict = {"scans_scored": int(len(scored)), "conflict_fraction": conflict}
     if len(scored):
