@@ -7,7 +7,7 @@ world `+experiment=sim_loops`, and the budgets, as tables.
   mean translational relation error of the causal (online) estimate and of the smoothed
   path. Budget: worst run <= 0.030 m (Intel), <= 0.050 m (ACES).
 - sim_loops: the preset's filter on seeds 0-2 (budget: worst ATE RMSE <= 0.10 m), a
-  `particles` sweep (10, 100; the preset is 30) with filter=rbpf, and filter=course beside it.
+  `particles` sweep (10, 30; the preset is 100) with filter=rbpf, and filter=course beside it.
 - hospital: the Freiburg hospital log (fr-clinic, no relations) with the same preset, alone:
   wall, CPU, scans/s, peak memory, map MB and the consistency score (the scale issue's row).
 - timing: one quiet, whole `slamlab +experiment=lidar2d` process per log, run alone: wall,
@@ -104,7 +104,7 @@ def sim_loops(out: Path, n_jobs: int, seeds: range) -> None:
     jobs = []
     for seed in seeds:
         jobs.append(({"what": "preset", "seed": seed}, ["+experiment=sim_loops", f"seed={seed}", "texture=none"]))
-        for n in (10, 100):  # 30 = the preset's own rows
+        for n in (10, 30):  # 100 = the preset's own rows
             jobs.append(({"what": "sweep", "seed": seed},
                          ["+experiment=sim_loops", "filter=rbpf", f"particles={n}", f"seed={seed}", "texture=none"]))
         jobs.append(({"what": "course", "seed": seed},

@@ -20,7 +20,7 @@ from slamlab.datasets.sim import generate as gen
 from slamlab.datasets.sim.generate import params_record, simulate_truth
 from slamlab.datasets.sim.world import build_world, occupancy_grid
 
-pytestmark = pytest.mark.slow  # generates the 176 m loops world and its walks
+pytestmark = pytest.mark.slow  # generates the 300 m loops world and its walks
 
 PRESET = Path(slamlab.__file__).parent / "conf" / "experiment" / "sim_loops.yaml"
 
@@ -57,9 +57,10 @@ def test_preset_selects_the_loops_layout() -> None:
 
 
 def test_building_route_and_long_corridor() -> None:
-    world = build_world(0, layout="loops", texture_res_m=0.1)
+    scale = preset_params().world_scale
+    world = build_world(0, layout="loops", texture_res_m=0.1, scale=scale)
     xmin, ymin, xmax, ymax = world.bounds
-    assert xmax - xmin == pytest.approx(40.0) and ymax - ymin == pytest.approx(30.0)
+    assert xmax - xmin == pytest.approx(40.0 * scale) and ymax - ymin == pytest.approx(30.0 * scale)
     route = world.route
     legs = np.hypot(*np.diff(route, axis=0).T)
     assert legs.sum() >= 150.0
@@ -87,7 +88,8 @@ def test_walk_is_long_and_closes_two_loops(truth) -> None:
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_route_never_touches_walls_clutter_or_people(seed: int) -> None:
-    params = preset_params(seed=seed, duration_s=430.0)  # a little past the end: the U-turn too
+    params = preset_params(seed=seed)
+    params = dataclasses.replace(params, duration_s=params.duration_s + 7.5)  # a little past the end: the U-turn too
     world, motion, _ = simulate_truth(dataclasses.replace(params, texture_res_m=0.1))
     xy = motion.sample(np.arange(0.0, params.duration_s, 0.1))["pose"][:, :2]
     # the true occupancy grid (walls, tall clutter) is free within 0.4 m of the path
