@@ -18,7 +18,7 @@ import math
 import numba
 import numpy as np
 
-from slamlab.slam.tiles import EMPTY, TILE_MASK, TILE_SHIFT
+from slamlab.slam.tiles import TILE_MASK, TILE_SHIFT
 
 
 @numba.njit(cache=True, inline="always")

@@ -86,8 +86,9 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, rel, used,
     """Ray-cast one scan into particle p's map: cells strictly before each end get `l_free`,
     end cells `l_occ` (all free updates first, as `raycast.raycast_update`), clamped to
     [lmin, lmax]. A cell the update leaves as it is (at a clamp) is not written, so a shared
-    tile is copied only when one of its cells really changes. Cells whose `lo > thresh` state changes are appended to `flips` (K, 3:
-    row, col, 1 = became occupied / 0 = became free); returns their count. Cells are given
+    tile is copied only when one of its cells really changes. Cells whose `lo > thresh` state
+    changes are appended to `flips` (K, 3: row, col, 1 = became occupied / 0 = became free);
+    returns their count. Cells are given
     in table coordinates and must lie inside the table."""
     nflip = 0
     last_tr = -1
