@@ -29,6 +29,7 @@ METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("trajectory.mean_m", "ATE mean (m)", "min", table=False),
     MetricSpec("trajectory.max_m", "ATE max (m)", "min"),
     MetricSpec("trajectory.rot_rmse_deg", "rot RMSE (°)", "min"),
+    MetricSpec("trajectory.aligned_rmse_m", "aligned ATE RMSE (m)", "min", table=False),
     MetricSpec("trajectory.causal_rmse_m", "causal RMSE (m)", "min", table=False),
     # Odometry error is a property of the data, not of the filter: shown, never "best".
     MetricSpec("trajectory.odometry_rmse_m", "odometry RMSE (m)", None),

@@ -91,6 +91,8 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
     traj = m.get("trajectory") if isinstance(m.get("trajectory"), dict) else {}
     if "rmse_m" in traj:
         out.append(("ATE RMSE (m)", fmt_number(traj["rmse_m"])))
+    if "aligned_rmse_m" in traj:
+        out.append(("ATE RMSE after rigid alignment (m)", fmt_number(traj["aligned_rmse_m"])))
     if "odometry_rmse_m" in traj:
         out.append(("odometry RMSE (m), the baseline", fmt_number(traj["odometry_rmse_m"])))
     if "rot_rmse_deg" in traj:
