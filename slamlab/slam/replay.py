@@ -53,17 +53,16 @@ def reduce_map(grid: GridImage, max_px: int = MAX_MAP_PX) -> tuple[np.ndarray, t
     """The observed part of a log-odds grid as uint8 free-ness (255 free, 0 occupied, 128
     unknown), block-reduced to <= max_px a side keeping each block's most occupied cell
     (thin walls survive), and its extent (x0, x1, y0, y1) in metres (row 0 = lowest y)."""
+    from slamlab.slam.map_reduce import block_max_1pass, known_bounds  # numba: the engine's path only
+
     data = grid.data
     res = grid.resolution_m
     ox, oy = grid.origin_xy
-    known = np.abs(data) > 1e-6
-    rows = np.flatnonzero(known.any(axis=1))
-    cols = np.flatnonzero(known.any(axis=0))
-    if not rows.size:
+    r0, r1, c0, c1 = known_bounds(data, data.dtype.type(1e-6))
+    if r1 == 0:
         return np.full((1, 1), 128, np.uint8), (ox, ox + res, oy, oy + res)
-    r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
     k = max(1, int(math.ceil(max(r1 - r0, c1 - c0) / max_px)))
-    crop = block_max(data[r0:r1, c0:c1], k)
+    crop = block_max_1pass(data[r0:r1, c0:c1], k)
     p_free = 1.0 - 1.0 / (1.0 + np.exp(-np.clip(crop.astype(np.float64), -30, 30)))
     extent = (ox + c0 * res, ox + (c0 + crop.shape[1] * k) * res, oy + r0 * res, oy + (r0 + crop.shape[0] * k) * res)
     return np.round(p_free * 255).astype(np.uint8), extent

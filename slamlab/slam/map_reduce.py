@@ -1,0 +1,62 @@
+"""One-pass reductions of a whole log-odds grid for the replay's snapshots (numba).
+
+A building's map is 10^8 cells and the engine reduces it at each of its 100 snapshots: numpy's
+version (`replay.block_max` and an `abs > eps` mask) made whole-map temporaries and read the
+grid k x k times with a stride (9.5 s of a 64 s run on the Freiburg hospital log). These give
+the same values in one pass without temporaries."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True)
+def block_max_1pass(data, k):
+    """`replay.block_max(data, k)` (k >= 1): each k x k block's largest value, blocks that
+    reach past the grid padded with 0."""
+    H, W = data.shape
+    h = (H + k - 1) // k
+    w = (W + k - 1) // k
+    out = np.full((h, w), -np.inf, dtype=data.dtype)
+    for r in range(H):
+        R = r // k
+        for C in range(w):
+            m = out[R, C]
+            for c in range(C * k, min((C + 1) * k, W)):
+                if data[r, c] > m:
+                    m = data[r, c]
+            out[R, C] = m
+    if H % k:
+        for C in range(w):
+            out[h - 1, C] = max(out[h - 1, C], 0.0)
+    if W % k:
+        for R in range(h):
+            out[R, w - 1] = max(out[R, w - 1], 0.0)
+    return out
+
+
+@numba.njit(cache=True)
+def known_bounds(data, eps):
+    """(r0, r1, c0, c1): the rows [r0, r1) and columns [c0, c1) that hold every cell with
+    |value| > eps (`eps` of the grid's dtype); r1 == 0 when there is none."""
+    H, W = data.shape
+    r0, r1, c0, c1 = H, 0, W, 0
+    for r in range(H):
+        first = -1
+        for c in range(W):
+            if abs(data[r, c]) > eps:
+                first = c
+                break
+        if first < 0:
+            continue
+        last = first
+        for c in range(W - 1, first, -1):
+            if abs(data[r, c]) > eps:
+                last = c
+                break
+        r0 = min(r0, r)
+        r1 = r + 1
+        c0 = min(c0, first)
+        c1 = max(c1, last + 1)
+    return r0, r1, c0, c1
