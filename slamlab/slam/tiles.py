@@ -88,8 +88,7 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, rel, used,
     [lmin, lmax]. A cell the update leaves as it is (at a clamp) is not written, so a shared
     tile is copied only when one of its cells really changes. Cells whose `lo > thresh` state
     changes are appended to `flips` (K, 3: row, col, 1 = became occupied / 0 = became free);
-    returns their count. Cells are given
-    in table coordinates and must lie inside the table."""
+    returns their count. Cells are given in table coordinates and must lie inside the table."""
     nflip = 0
     last_tr = -1
     last_tc = -1
@@ -601,7 +600,7 @@ class TiledMaps:
     # ---- reading ------------------------------------------------------------------------
     def bytes_per_tile(self) -> int:
         """Bytes of one tile position: its log-odds tile plus, with a field, its field tile."""
-        return sum(pool.tile_bytes for name, pool in self._pools.items() if name == "lo" or self.has_field)
+        return self._pools["lo"].tile_bytes + (self._pools["f"].tile_bytes if self.has_field else 0)
 
     def memory_mb(self, tiles: int | None = None) -> float:
         """MB held by the maps: distinct tiles (shared ones once) plus the tables."""
