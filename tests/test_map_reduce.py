@@ -9,10 +9,12 @@ from slamlab.slam.map_reduce import block_max_1pass, known_bounds
 from slamlab.slam.replay import block_max
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.int8])  # log-odds, and the RBPF tiles' codes
 @pytest.mark.parametrize("shape, k", [((37, 53), 1), ((37, 53), 4), ((64, 64), 8), ((100, 7), 36), ((5, 5), 9)])
-def test_block_max_equals_numpys(shape, k):
+def test_block_max_equals_numpys(shape, k, dtype):
     rng = np.random.default_rng(k)
-    data = rng.normal(-2.0, 1.0, shape).astype(np.float32)  # mostly negative: padding zeros must win at the edges
+    data = rng.normal(-2.0, 1.0, shape)  # mostly negative: padding zeros must win at the edges
+    data = data.astype(np.float32) if dtype == np.float32 else np.clip(np.round(data * 20), -100, 100).astype(np.int8)
     got = block_max_1pass(data, k)
     assert got.dtype == data.dtype and np.array_equal(got, block_max(data, k) if k > 1 else data)
 

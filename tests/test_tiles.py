@@ -105,20 +105,31 @@ def test_shared_tiles_are_counted_once_in_memory():
     many.insert_scan(np.zeros((50, 3)), pts, origin, which=np.array([0]))
     many.share_all_from(0)
     assert many.tiles_in_use == one.tiles_in_use > 0
-    tile_bytes = TILE * TILE * (4 + 1)  # log-odds float32 + field one-byte codes
+    tile_bytes = TILE * TILE * (1 + 1)  # log-odds one-byte codes (units of 0.05) + field one-byte codes
     assert many.memory_mb() == pytest.approx((one.tiles_in_use * tile_bytes + many.table.nbytes) / 1e6)
     # 50 particles each writing their own scan hold about 50 maps' worth of changed tiles
     many.insert_scan(rng.normal(0, 0.3, (50, 3)), pts, origin)
     assert many.tiles_in_use > 10 * one.tiles_in_use
 
 
+# log-odds updates whose float32 sums are exact (binary fractions), and the defaults (0.85,
+# -0.4: the dense grid's float32 sums round, the tiles' integer codes of 0.05 do not)
+EXACT = MapSettings(resolution_m=RES, initial_size_m=12.8, growth_margin_m=0.0, log_odds_occupied=0.75, log_odds_free=-0.375,
+                    clamp_min=-4.0, clamp_max=4.0)
+
+
+@pytest.mark.parametrize("settings", [EXACT, SETTINGS], ids=["binary", "default"])
 @pytest.mark.parametrize("field", [False, True])
-def test_tiles_hold_the_same_values_as_the_dense_grid(field):
+def test_tiles_hold_the_same_values_as_the_dense_grid(field, settings):
     """Three particles updated together (in parallel) from their own random poses, resampled
     now and then so children share tiles and then copy them, cells flipping both ways and a
     field radius of 20 cells: every particle's log-odds and incrementally kept field equal
-    those of its own dense grid (full recomputation over the changed box), exactly."""
+    those of its own dense grid (full recomputation over the changed box): exactly where the
+    grid's float32 sums are exact, else within their rounding with the same walls."""
     import copy
+
+    SETTINGS = settings
+    assert TiledMaps(SETTINGS, 1).lo_dtype == np.int8  # both kinds of updates have one-byte codes
 
     rng = np.random.default_rng(3)
     sigma, radius = (0.3, 1.0) if field else (0.0, 0.0)
@@ -149,7 +160,11 @@ def test_tiles_hold_the_same_values_as_the_dense_grid(field):
     assert freed > 20  # the recomputation path for cells that stopped being walls ran
     H, W = dense[0].shape
     for p in range(3):
-        assert np.array_equal(maps.dense(p)[:H, :W], dense[p].log_odds)
+        if settings is EXACT:
+            assert np.array_equal(maps.dense(p)[:H, :W], dense[p].log_odds)
+        else:
+            assert np.abs(maps.dense(p)[:H, :W] - dense[p].log_odds).max() < 1e-5
+        assert np.array_equal(maps.dense(p)[:H, :W] > 0, dense[p].occupied())
         if field:
             assert np.array_equal(maps.dense(p, "field")[:H, :W], dense[p].field)
     # references are exact after all that
@@ -343,3 +358,27 @@ def test_field_codes_decode_to_the_kernel_and_keep_its_order():
         assert np.array_equal(lut[codes], kernel)
         a, b = kernel.ravel()[:, None], kernel.ravel()[None, :]
         assert np.array_equal(a > b, codes.ravel()[:, None] > codes.ravel()[None, :])
+
+
+def test_the_code_image_decodes_to_the_log_odds_image():
+    """The engine keeps the best map as one-byte codes while the particles' maps are held and
+    decodes it afterwards: the same float32 image as decoding while cropping."""
+    from slamlab.slam.replay import reduce_map
+    from slamlab.slam.tiles import decode_image
+
+    rng = np.random.default_rng(5)
+    maps = TiledMaps(SETTINGS, 2)
+    for _ in range(6):
+        poses = np.stack([rng.uniform(-4, 4, 2), rng.uniform(-4, 4, 2), rng.uniform(-np.pi, np.pi, 2)], axis=1)
+        maps.insert_scan(poses, *_scan(rng, m=80, max_r=9.0))
+    codes = maps.to_image(1, decoded=False)
+    assert codes.data.dtype == np.int8 and maps.lo_unit == pytest.approx(0.05)
+    assert set(np.unique(codes.data)) >= {-8, 17}  # one free update and one hit, in units of 0.05
+    image = maps.to_image(1)
+    decoded = decode_image(codes, maps.lo_unit, band_rows=7)  # bands that do not divide the rows
+    assert decoded.origin_xy == image.origin_xy and np.array_equal(decoded.data, image.data)
+    assert image.data.dtype == np.float32 and np.array_equal(image.data, (codes.data * 0.05).astype(np.float32))
+    # the replay's snapshot of the codes is the snapshot of the log-odds
+    for a, b in zip(reduce_map(codes, 64, unit=maps.lo_unit), reduce_map(image, 64)):
+        assert np.array_equal(a, b)
+

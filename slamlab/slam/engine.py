@@ -48,6 +48,7 @@ from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import Matcher
 from slamlab.slam.motion import MotionModel
 from slamlab.slam.replay import ReplayRecorder, snapshot_steps
+from slamlab.slam.tiles import decode_image
 from slamlab.slam.resample import Resampler
 from slamlab.slam.result import ParticleHistory, SlamResult
 from slamlab.slam.scan import points_to_world, range_limits, scan_to_points
@@ -172,7 +173,7 @@ def run_slam(
             if last:
                 final_map = image  # before a resample renumbers the particles' maps
             if want_snapshot:
-                replay.add(k, poses, best, points_to_world(pts.xy, poses[best]), image)
+                replay.add(k, poses, best, points_to_world(pts.xy, poses[best]), image, maps.unit)
         neff = effective_sample_size(w)
         resampled = False
         if slam and n > 1 and c.resampler.should_resample(w):
@@ -200,7 +201,9 @@ def run_slam(
             break
     runtime = time.perf_counter() - t_loop
     map_memory = maps.memory()
+    unit = maps.unit
     del maps  # the particles' maps (tens of MB for the RBPF) go before pandas comes in below
+    final_map = decode_image(final_map, unit)  # float32 log-odds once the maps are gone
 
     # `best` indexes the last step's particles before resampling (the set hist_poses[-1]
     # holds); after a resample the weights are uniform and no longer say who was best.

@@ -53,7 +53,14 @@ class ParticleMaps(ABC):
 
     @abstractmethod
     def image(self, best: int) -> GridImage:
-        """The final log-odds map (float32), of particle `best`."""
+        """The map of particle `best` as stored: log-odds (float32), or integer codes whose
+        log-odds are `decode_image(image, self.unit)` (the RBPF's one-byte tiles: a quarter
+        of the memory while the particles' maps are still held)."""
+
+    @property
+    def unit(self) -> float:
+        """Log-odds of one step of `image`'s values (1.0: they are log-odds)."""
+        return 1.0
 
     @abstractmethod
     def memory(self) -> dict:
@@ -119,7 +126,11 @@ class PerParticleMaps(ParticleMaps):
         self.maps.resample(idx)
 
     def image(self, best: int) -> GridImage:
-        return self.maps.to_image(best)
+        return self.maps.to_image(best, decoded=False)
+
+    @property
+    def unit(self) -> float:
+        return self.maps.lo_unit
 
     def memory(self) -> dict:
         m = self.maps

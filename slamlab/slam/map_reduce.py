@@ -18,11 +18,12 @@ def block_max_1pass(data, k):
     H, W = data.shape
     h = (H + k - 1) // k
     w = (W + k - 1) // k
-    out = np.full((h, w), -np.inf, dtype=data.dtype)
+    out = np.empty((h, w), dtype=data.dtype)
     for r in range(H):
         R = r // k
         for C in range(w):
-            m = out[R, C]
+            # a block's first row starts from its first cell (any dtype: integer codes too)
+            m = data[r, C * k] if r % k == 0 else out[R, C]
             for c in range(C * k, min((C + 1) * k, W)):
                 if data[r, c] > m:
                     m = data[r, c]

@@ -350,7 +350,7 @@ class GridMatcher(Matcher):
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
         tiled_grid_search(
-            maps.pool_lo, maps.table, np.float32(maps.s.occupied_threshold), maps.origin[0], maps.origin[1], 1.0 / maps.res,
+            maps.pool_lo, maps.table, maps.lo_code(maps.s.occupied_threshold), maps.origin[0], maps.origin[1], 1.0 / maps.res,
             np.ascontiguousarray(poses), pts, self.offsets, best, scores,
         )
         self.map_reads += len(poses) * len(self.offsets) * len(pts)

@@ -49,10 +49,11 @@ def block_max(data: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
-def reduce_map(grid: GridImage, max_px: int = MAX_MAP_PX) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+def reduce_map(grid: GridImage, max_px: int = MAX_MAP_PX, unit: float = 1.0) -> tuple[np.ndarray, tuple[float, float, float, float]]:
     """The observed part of a log-odds grid as uint8 free-ness (255 free, 0 occupied, 128
     unknown), block-reduced to <= max_px a side keeping each block's most occupied cell
-    (thin walls survive), and its extent (x0, x1, y0, y1) in metres (row 0 = lowest y)."""
+    (thin walls survive), and its extent (x0, x1, y0, y1) in metres (row 0 = lowest y).
+    The grid may hold integer codes of log-odds in steps of `unit` (`tiles.decode_image`)."""
     from slamlab.slam.map_reduce import block_max_1pass, known_bounds  # numba: the engine's path only
 
     data = grid.data
@@ -63,7 +64,7 @@ def reduce_map(grid: GridImage, max_px: int = MAX_MAP_PX) -> tuple[np.ndarray, t
         return np.full((1, 1), 128, np.uint8), (ox, ox + res, oy, oy + res)
     k = max(1, int(math.ceil(max(r1 - r0, c1 - c0) / max_px)))
     crop = block_max_1pass(data[r0:r1, c0:c1], k)
-    p_free = 1.0 - 1.0 / (1.0 + np.exp(-np.clip(crop.astype(np.float64), -30, 30)))
+    p_free = 1.0 - 1.0 / (1.0 + np.exp(-np.clip(crop.astype(np.float64) * unit, -30, 30)))
     extent = (ox + c0 * res, ox + (c0 + crop.shape[1] * k) * res, oy + r0 * res, oy + (r0 + crop.shape[0] * k) * res)
     return np.round(p_free * 255).astype(np.uint8), extent
 
@@ -88,10 +89,10 @@ class ReplayRecorder:
     def wants(self, k: int) -> bool:
         return k in self._wanted
 
-    def add(self, k: int, poses: FloatArray, best: int, scan_world: FloatArray, grid: GridImage) -> None:
+    def add(self, k: int, poses: FloatArray, best: int, scan_world: FloatArray, grid: GridImage, unit: float = 1.0) -> None:
         """Step k after its map update: particle poses (N, 3), the best one's index, its scan
-        points in the world frame (M, 2) and its map."""
-        img, extent = reduce_map(grid)
+        points in the world frame (M, 2) and its map (log-odds, or codes in steps of `unit`)."""
+        img, extent = reduce_map(grid, unit=unit)
         keep = np.linspace(0, len(scan_world) - 1, min(len(scan_world), MAX_SCAN_POINTS)).round().astype(int) if len(scan_world) else []
         self._step.append(k)
         self._poses.append(np.asarray(poses, np.float32))

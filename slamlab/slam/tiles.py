@@ -33,6 +33,12 @@ nearest occupied cell, or 0), so a cell holds that value's rank among them (`fie
 and readers decode it through `field_lut`; the ranks keep the values' order, so the
 incremental max works on the codes, and a decoded read is the float32 a float field would
 hold, bit for bit (a field tile is 1 KB instead of 4).
+
+Log-odds cells are small integers too when the map's settings allow it (`log_odds_codes`):
+with the default +0.85 / -0.4 updates and +-5 clamps every reachable value is a multiple of
+0.05, so a cell holds that multiple in one signed byte (-100..100) and the updates add exact
+integers (a log-odds tile is 1 KB instead of 4; float32 sums carried rounding errors instead).
+Settings with no such common unit keep float32 tiles.
 """
 
 from __future__ import annotations
@@ -372,6 +378,24 @@ def _anonymous_map(nbytes: int) -> mmap.mmap:
     return mmap.mmap(-1, nbytes, flags=private | mmap.MAP_ANONYMOUS)
 
 
+def log_odds_codes(settings: MapSettings) -> tuple[np.dtype, float]:
+    """(dtype, unit m) of the log-odds tiles: the smallest signed integer type whose codes,
+    in units of the largest `unit` that divides the updates, clamps and threshold exactly,
+    cover the clamps; (float32, 1.0) when no such unit fits in 16 bits (values then stored
+    as they are)."""
+    s = settings
+    values = np.array([s.log_odds_occupied, s.log_odds_free, s.clamp_min, s.clamp_max, s.occupied_threshold], dtype=np.float64)
+    bound = max(-s.clamp_min, s.clamp_max)
+    for dtype in (np.int8, np.int16):
+        n = np.arange(1, int(np.iinfo(dtype).max) + 1, dtype=np.float64)[:, None]
+        q = values * (n / bound)  # row n-1: the values in units of bound / n
+        # exact up to float64 rounding of decimal settings (0.85 / 0.05 = 16.999999999999996)
+        whole = np.all(np.abs(q - np.round(q)) < 1e-9 * np.maximum(1.0, np.abs(q)), axis=1)
+        if whole.any():
+            return np.dtype(dtype), bound / float(n[np.argmax(whole), 0])
+    return np.dtype(np.float32), 1.0
+
+
 def field_codes(kernel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One-byte codes for a float32 field kernel: (codes uint8 like `kernel`, lut float32)
     with lut[codes] == kernel, lut sorted ascending and lut[0] == 0 (the empty tile)."""
@@ -379,6 +403,26 @@ def field_codes(kernel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if len(lut) > 256:
         raise ConfigError("matcher.radius_m", f"the field kernel has {len(lut)} distinct values; at most 256 fit the one-byte field tiles")
     return np.searchsorted(lut, kernel).astype(np.uint8), lut
+
+
+def decode_codes(codes: np.ndarray, unit: float) -> np.ndarray:
+    """Log-odds (float32) of log-odds cell codes in units of `unit` (float32 codes with unit
+    1.0 are log-odds already and come back as they are)."""
+    if codes.dtype == np.float32 and unit == 1.0:
+        return codes
+    return (codes * unit).astype(np.float32)
+
+
+def decode_image(image: GridImage, unit: float, band_rows: int = 1024) -> GridImage:
+    """`image` of log-odds codes (`TiledMaps.to_image(p, decoded=False)`) as float32
+    log-odds, decoded a band of rows at a time (a whole-map float64 product of a building's
+    map would take 0.5 GB)."""
+    if image.data.dtype == np.float32 and unit == 1.0:
+        return image
+    data = np.empty(image.data.shape, dtype=np.float32)
+    for r in range(0, data.shape[0], band_rows):
+        data[r:r + band_rows] = decode_codes(image.data[r:r + band_rows], unit)
+    return GridImage(data=data, resolution_m=image.resolution_m, origin_xy=image.origin_xy)
 
 
 class _TilePool:
@@ -448,8 +492,10 @@ class TiledMaps:
             if radius + 1 >= (3 * TILE) // 4:
                 raise ConfigError("matcher.radius_m (or sigma_m)", f"must stay below {(3 * TILE) // 4 - 1} cells ({((3 * TILE) // 4 - 1) * self.res:g} m) at this resolution")
             self.kernel, self.field_lut = field_codes(gaussian_kernel(field_sigma_m / self.res, radius))
+        # log-odds cells as integer codes of `lo_unit` where the settings allow (module doc)
+        self.lo_dtype, self.lo_unit = log_odds_codes(settings)
         cap = max(int(initial_tiles), 2)
-        self._pools = {"lo": _TilePool(cap, np.float32), "f": _TilePool(cap if self.has_field else 1, np.uint8)}
+        self._pools = {"lo": _TilePool(cap, self.lo_dtype), "f": _TilePool(cap if self.has_field else 1, np.uint8)}
         self.ref = np.zeros(cap, dtype=np.int32)
         self.free = np.arange(1, cap, dtype=np.int32)  # tile ids no table refers to (not 0)
         self.peak_tiles = 0
@@ -488,8 +534,19 @@ class TiledMaps:
     # ---- tile pool ----------------------------------------------------------------------
     @property
     def pool_lo(self) -> np.ndarray:
-        """(capacity, TILE, TILE) float32 log-odds tiles (index EMPTY: all zero)."""
+        """(capacity, TILE, TILE) log-odds tiles (index EMPTY: all zero), in codes of
+        `lo_dtype`: a cell's log-odds is its code times `lo_unit`."""
         return self._pools["lo"].array
+
+    def lo_code(self, value: float) -> np.generic:
+        """A log-odds value (one of the settings') as a cell code of `lo_dtype`."""
+        if self.lo_dtype == np.float32:
+            return np.float32(value)
+        return self.lo_dtype.type(round(value / self.lo_unit))
+
+    def decode(self, codes: np.ndarray) -> np.ndarray:
+        """Log-odds (float32) of cell codes."""
+        return decode_codes(codes, self.lo_unit)
 
     @property
     def pool_f(self) -> np.ndarray:
@@ -550,8 +607,8 @@ class TiledMaps:
         insert_scans(
             self.table, self.pool_lo, self.pool_f, self.has_field, self.ref, self.free, released, starts, used, which, poses, pts, origin,
             x0, y0, inv,
-            np.float32(s.log_odds_occupied), np.float32(s.log_odds_free), np.float32(s.clamp_min),
-            np.float32(s.clamp_max), np.float32(s.occupied_threshold), self.kernel, rows, cols, flips,
+            self.lo_code(s.log_odds_occupied), self.lo_code(s.log_odds_free), self.lo_code(s.clamp_min),
+            self.lo_code(s.clamp_max), self.lo_code(s.occupied_threshold), self.kernel, rows, cols, flips,
         )
         # peak: before `_release` frees the tiles the copies replaced, both are held
         self.peak_tiles = max(self.peak_tiles, self.tiles_in_use + int(used.sum()))
@@ -612,22 +669,25 @@ class TiledMaps:
         `which="field"` decodes the field's codes."""
         pool = self.pool_lo if which == "log_odds" else self.pool_f
         cells = pool[self.table[p]].transpose(0, 2, 1, 3).reshape(self.shape)
-        return cells if which == "log_odds" else self.field_lut[cells]
+        return self.decode(cells) if which == "log_odds" else self.field_lut[cells]
 
-    def to_image(self, p: int) -> GridImage:
-        """Particle p's log-odds map, cropped to the tiles it has written (float32 GridImage)."""
+    def to_image(self, p: int, decoded: bool = True) -> GridImage:
+        """Particle p's log-odds map, cropped to the tiles it has written (float32 GridImage;
+        with `decoded=False` its cell codes, `lo_dtype`, a quarter of the size for int8)."""
         tab = self.table[p]
         rr, cc = np.nonzero(tab != EMPTY)
         if len(rr) == 0:
             rr, cc = np.array([0]), np.array([0])
         r0, r1, c0, c1 = rr.min(), rr.max() + 1, cc.min(), cc.max() + 1
         tw = c1 - c0
-        data = np.empty(((r1 - r0) * TILE, tw * TILE), dtype=np.float32)
+        data = np.empty(((r1 - r0) * TILE, tw * TILE), dtype=np.float32 if decoded else self.lo_dtype)
         pool = self.pool_lo
         for i in range(r1 - r0):
             # one band of tiles at a time: a whole-map gather plus its transposed copy would
             # hold the map twice more (0.5 GB for a 570 x 290 m building at 5 cm)
             band = pool[tab[r0 + i, c0:c1]]  # (tw, T, T)
+            if decoded:
+                band = self.decode(band)
             data[i * TILE:(i + 1) * TILE] = band.transpose(1, 0, 2).reshape(TILE, tw * TILE)
         ox = float(self.origin[0] + c0 * TILE * self.res)
         oy = float(self.origin[1] + r0 * TILE * self.res)
