@@ -1,7 +1,7 @@
 """The RBPF issue's acceptance numbers: robustness of `+experiment=lidar2d`, the hard simulated
 world `+experiment=sim_loops`, and the budgets, as tables.
 
-    .venv/bin/python benchmarks/bench_filters.py [--only lidar2d,sim_loops,timing] [--jobs 2] [--out DIR]
+    .venv/bin/python benchmarks/bench_filters.py [--only lidar2d,sim_loops,timing] [--jobs 2] [--first-seed 0] [--out DIR]
 
 - lidar2d: Intel and ACES, seeds 0-4, at the preset's step thresholds and at half of them;
   mean translational relation error of the causal (online) estimate and of the smoothed
@@ -163,6 +163,7 @@ def main() -> None:
     ap.add_argument("--only", default="lidar2d,sim_loops,timing", help="comma list of lidar2d, sim_loops, timing, hospital")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seeds", type=int, default=5, help="lidar2d seeds (sim_loops uses 3)")
+    ap.add_argument("--first-seed", type=int, default=0, help="lidar2d seeds start here (5: seeds 5-9, beyond the budget's 0-4)")
     ap.add_argument("--out", type=Path, default=None, help="keep the run folders here")
     args = ap.parse_args()
     if data_dir() is None and any(p in args.only for p in ("lidar2d", "timing", "hospital")):
@@ -175,7 +176,7 @@ def main() -> None:
         if "hospital" in parts:
             hospital(out)
         if "lidar2d" in parts:
-            lidar2d(out, args.jobs, range(args.seeds))
+            lidar2d(out, args.jobs, range(args.first_seed, args.first_seed + args.seeds))
         if "sim_loops" in parts:
             sim_loops(out, args.jobs, range(3))
 

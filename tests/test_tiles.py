@@ -118,7 +118,12 @@ EXACT = MapSettings(resolution_m=RES, initial_size_m=12.8, growth_margin_m=0.0, 
                     clamp_min=-4.0, clamp_max=4.0)
 
 
-@pytest.mark.parametrize("settings", [EXACT, SETTINGS], ids=["binary", "default"])
+# updates with no common unit (the logits of 0.7 and 0.4): float32 cells, the grid's arithmetic
+LOGIT = MapSettings(resolution_m=RES, initial_size_m=12.8, growth_margin_m=0.0, log_odds_occupied=float(np.log(7 / 3)),
+                    log_odds_free=float(np.log(4 / 6)))
+
+
+@pytest.mark.parametrize("settings", [EXACT, SETTINGS, LOGIT], ids=["binary", "default", "float32"])
 @pytest.mark.parametrize("field", [False, True])
 def test_tiles_hold_the_same_values_as_the_dense_grid(field, settings):
     """Three particles updated together (in parallel) from their own random poses, resampled
@@ -129,7 +134,7 @@ def test_tiles_hold_the_same_values_as_the_dense_grid(field, settings):
     import copy
 
     SETTINGS = settings
-    assert TiledMaps(SETTINGS, 1).lo_dtype == np.int8  # both kinds of updates have one-byte codes
+    assert TiledMaps(SETTINGS, 1).lo_dtype == (np.float32 if settings is LOGIT else np.int8)
 
     rng = np.random.default_rng(3)
     sigma, radius = (0.3, 1.0) if field else (0.0, 0.0)
@@ -160,7 +165,7 @@ def test_tiles_hold_the_same_values_as_the_dense_grid(field, settings):
     assert freed > 20  # the recomputation path for cells that stopped being walls ran
     H, W = dense[0].shape
     for p in range(3):
-        if settings is EXACT:
+        if settings is not SETTINGS:
             assert np.array_equal(maps.dense(p)[:H, :W], dense[p].log_odds)
         else:
             assert np.abs(maps.dense(p)[:H, :W] - dense[p].log_odds).max() < 1e-5
@@ -358,6 +363,16 @@ def test_field_codes_decode_to_the_kernel_and_keep_its_order():
         assert np.array_equal(lut[codes], kernel)
         a, b = kernel.ravel()[:, None], kernel.ravel()[None, :]
         assert np.array_equal(a > b, codes.ravel()[:, None] > codes.ravel()[None, :])
+
+
+def test_log_odds_codes_pick_the_smallest_exact_integer_type():
+    from slamlab.slam.tiles import log_odds_codes
+
+    assert log_odds_codes(SETTINGS) == (np.int8, pytest.approx(0.05))  # +0.85, -0.4, +-5: -100..100
+    assert log_odds_codes(EXACT) == (np.int8, pytest.approx(0.125))  # 0.75, -0.375, +-4: -32..32
+    assert log_odds_codes(MapSettings(log_odds_occupied=0.847)) == (np.int16, pytest.approx(0.001))
+    assert log_odds_codes(MapSettings(clamp_max=50.0, clamp_min=-50.0)) == (np.int16, pytest.approx(0.05))
+    assert log_odds_codes(LOGIT) == (np.float32, 1.0)
 
 
 def test_the_code_image_decodes_to_the_log_odds_image():

@@ -379,7 +379,7 @@ def _anonymous_map(nbytes: int) -> mmap.mmap:
 
 
 def log_odds_codes(settings: MapSettings) -> tuple[np.dtype, float]:
-    """(dtype, unit m) of the log-odds tiles: the smallest signed integer type whose codes,
+    """(dtype, unit of log-odds) of the log-odds tiles: the smallest signed integer type whose codes,
     in units of the largest `unit` that divides the updates, clamps and threshold exactly,
     cover the clamps; (float32, 1.0) when no such unit fits in 16 bits (values then stored
     as they are)."""
