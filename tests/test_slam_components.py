@@ -36,6 +36,20 @@ def _cast(r0, c0, ends, shape=(12, 12)):
     return lo, flip
 
 
+def test_raycast_walks_the_reference_cells_in_every_direction():
+    """The kernels compute Bresenham's minor-axis steps instead of branching on them: every
+    beam from the centre to each cell of a 41 x 41 square (all octants, steep and shallow,
+    axis-aligned and diagonal) updates exactly the reference line's cells."""
+    for r1 in range(0, 41):
+        for c1 in range(0, 41):
+            if (r1, c1) == (20, 20):
+                continue
+            lo, _ = _cast(20, 20, [(r1, c1)], shape=(41, 41))
+            cells = bresenham(20, 20, r1, c1)
+            free = {(int(r), int(c)) for r, c in zip(*np.nonzero(lo < 0))}
+            assert free == set(cells[:-1]) and lo[r1, c1] > 0
+
+
 def test_raycast_matches_reference_and_clamps():
     lo, flip = _cast(1, 1, [(7, 4)])
     cells = bresenham(1, 1, 7, 4)

@@ -70,14 +70,21 @@ def raycast_update(lo, r0, c0, rows, cols, l_occ, l_free, lmin, lmax, thresh, fl
         err = dc - dr
         r = r0
         c = c0
-        while r != r1 or c != c1:
+        # the cells `bresenham` lists, without the end: max(dr, dc) steps along the major
+        # axis, the minor step computed rather than branched on (branch prediction fails on
+        # its pattern; as `tiles.tiled_raycast`)
+        major_c = dc >= dr
+        for _ in range(dc if major_c else dr):
             _add(lo, r, c, l_free, lmin, lmax, thresh, flip)
-            e2 = 2 * err
-            if e2 > -dr:
-                err -= dr
+            if major_c:
+                m = 1 if 2 * err < dc else 0
+                err += m * dc - dr
+                r += m * sr
                 c += sc
-            if e2 < dc:
-                err += dc
+            else:
+                m = 1 if 2 * err > -dr else 0
+                err += dc - m * dr
+                c += m * sc
                 r += sr
     for k in range(rows.shape[0]):
         _add(lo, rows[k], cols[k], l_occ, lmin, lmax, thresh, flip)
