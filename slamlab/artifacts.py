@@ -62,31 +62,38 @@ def map_png_rgba(log_odds: np.ndarray) -> np.ndarray:
 
 def write_map(run_dir: Path, grid: GridImage) -> None:
     """map.png (for people), map.pgm + map.yaml (ROS map_server), map_logodds.npz (raw)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from slamlab.io.png import write_png
 
     run_dir = Path(run_dir)
-    img = map_image(grid.data)
-    # map.png: Pillow alone; the bytes plt.imsave(cmap="gray", vmin=0, vmax=1) wrote before
-    with atomic_path(run_dir / RunFile.MAP_PNG) as tmp:
-        write_png(tmp, map_png_rgba(grid.data))
-    h, w = img.shape
-    write_bytes(run_dir / RunFile.MAP_PGM, f"P5\n{w} {h}\n255\n".encode("ascii") + img.tobytes())
-    ox, oy = grid.origin_xy
-    write_text(
-        run_dir / RunFile.MAP_YAML,
-        f"image: {RunFile.MAP_PGM}\n"
-        f"resolution: {grid.resolution_m:.6f}\n"
-        f"origin: [{ox:.6f}, {oy:.6f}, 0.0]\n"
-        "negate: 0\n"
-        f"occupied_thresh: {OCCUPIED_THRESH}\n"
-        f"free_thresh: {FREE_THRESH}\n",
-    )
-    write_npz(
-        run_dir / RunFile.MAP_LOGODDS,
-        data=np.asarray(grid.data, dtype=np.float32),  # no copy of a float32 map
-        resolution_m=np.float64(grid.resolution_m),
-        origin_xy=np.asarray(grid.origin_xy, dtype=np.float64),
-    )
+    # the npz's deflate and the PNG's run at once: zlib and Pillow's encoder let go of the
+    # GIL, and on a building's map each takes seconds
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        raw = pool.submit(
+            write_npz,
+            run_dir / RunFile.MAP_LOGODDS,
+            data=np.asarray(grid.data, dtype=np.float32),  # no copy of a float32 map
+            resolution_m=np.float64(grid.resolution_m),
+            origin_xy=np.asarray(grid.origin_xy, dtype=np.float64),
+        )
+        img = map_image(grid.data)
+        # map.png: Pillow alone; the bytes plt.imsave(cmap="gray", vmin=0, vmax=1) wrote before
+        with atomic_path(run_dir / RunFile.MAP_PNG) as tmp:
+            write_png(tmp, map_png_rgba(grid.data))
+        h, w = img.shape
+        write_bytes(run_dir / RunFile.MAP_PGM, f"P5\n{w} {h}\n255\n".encode("ascii") + img.tobytes())
+        ox, oy = grid.origin_xy
+        write_text(
+            run_dir / RunFile.MAP_YAML,
+            f"image: {RunFile.MAP_PGM}\n"
+            f"resolution: {grid.resolution_m:.6f}\n"
+            f"origin: [{ox:.6f}, {oy:.6f}, 0.0]\n"
+            "negate: 0\n"
+            f"occupied_thresh: {OCCUPIED_THRESH}\n"
+            f"free_thresh: {FREE_THRESH}\n",
+        )
+        raw.result()  # its error, if any, is raised here
 
 
 def read_map(run_dir: Path) -> GridImage:
