@@ -505,7 +505,10 @@ class TiledMaps:
         cap = max(int(initial_tiles), 2)
         self._pools = {"lo": _TilePool(cap, self.lo_dtype), "f": _TilePool(cap if self.has_field else 1, np.uint8)}
         self.ref = np.zeros(cap, dtype=np.int32)
-        self.free = np.arange(1, cap, dtype=np.int32)  # tile ids no table refers to (not 0)
+        # the free list (tile ids no table refers to, not 0) is `_free_buf[_free_lo:]`: taking
+        # tiles from its front and putting some back moves `_free_lo`, not the whole list
+        self._free_buf = np.arange(1, cap, dtype=np.int32)
+        self._free_lo = 0
         self.peak_tiles = 0
         self.tiles_taken = 0  # fresh tiles taken: copies of shared tiles or new ones
         # scratch of insert_scan: cells (2, particles, points) and flips (particles, K, 3)
@@ -563,6 +566,15 @@ class TiledMaps:
         return self._pools["f"].array
 
     @property
+    def free(self) -> np.ndarray:
+        """The free list: tile ids no table refers to, the next one to take first."""
+        return self._free_buf[self._free_lo:]
+
+    def _set_free(self, ids: np.ndarray) -> None:
+        self._free_buf = np.ascontiguousarray(ids, dtype=np.int32)
+        self._free_lo = 0
+
+    @property
     def tiles_in_use(self) -> int:
         """Distinct tiles held (shared tiles count once; the empty tile not at all)."""
         return int(len(self.ref) - 1 - len(self.free))
@@ -578,7 +590,7 @@ class TiledMaps:
         if self.has_field:
             self._pools["f"].grow(new_cap)
         self.ref = np.concatenate([self.ref, np.zeros(new_cap - cap, dtype=np.int32)])
-        self.free = np.concatenate([self.free, np.arange(cap, new_cap, dtype=np.int32)])
+        self._set_free(np.concatenate([self.free, np.arange(cap, new_cap, dtype=np.int32)]))
 
     def insert_scan(self, poses: FloatArray, scan_xy: FloatArray, scan_origin: FloatArray, which: np.ndarray | None = None) -> None:
         """Ray-cast one scan into the maps of particles `which` (default: all), each from
@@ -634,9 +646,17 @@ class TiledMaps:
         gone = gone[gone != EMPTY]
         np.subtract.at(self.ref, gone, 1)
         freed = np.unique(gone[self.ref[gone] == 0])
-        # tiles just let go of go first: they are reused before pool memory never touched
-        # yet, so the pool's resident pages stay close to the tiles in use
-        self.free = np.concatenate([freed, np.delete(self.free, pos)]).astype(np.int32)
+        # the free list becomes [freed, untaken, rest]: tiles just let go of go first (reused
+        # before pool memory never touched yet, so the pool's resident pages stay close to
+        # the tiles in use), then the handed-out ones nobody took. Both fit in the handed-out
+        # prefix (each taken tile lets go of at most one), so only that prefix is rewritten.
+        total = int(starts[-1])
+        lo = self._free_lo
+        untaken = np.delete(self._free_buf[lo:lo + total], pos)
+        new_lo = lo + total - len(freed) - len(untaken)
+        self._free_buf[new_lo:new_lo + len(freed)] = freed
+        self._free_buf[new_lo + len(freed):lo + total] = untaken
+        self._free_lo = new_lo
 
     def _scratch(self, n: int, m: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Reused work arrays for `insert_scans` (grown, never shrunk)."""
@@ -660,7 +680,7 @@ class TiledMaps:
         ref = np.bincount(self.table.ravel(), minlength=len(self.ref)).astype(np.int32)
         ref[EMPTY] = 0
         self.ref = ref
-        self.free = np.flatnonzero(ref[1:] == 0).astype(np.int32) + 1
+        self._set_free(np.flatnonzero(ref[1:] == 0).astype(np.int32) + 1)
 
     # ---- reading ------------------------------------------------------------------------
     def bytes_per_tile(self) -> int:
