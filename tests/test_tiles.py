@@ -397,3 +397,25 @@ def test_the_code_image_decodes_to_the_log_odds_image():
     for a, b in zip(reduce_map(codes, 64, unit=maps.lo_unit), reduce_map(image, 64)):
         assert np.array_equal(a, b)
 
+
+@pytest.mark.parametrize("settings", [SETTINGS, LOGIT], ids=["int8", "float32"])
+@pytest.mark.parametrize("max_px", [1000, 64, 37])  # k = 1; k not dividing the crop; k across tiles
+def test_snapshots_read_from_tiles_equal_those_of_the_gathered_map(settings, max_px):
+    """The replay's snapshot straight from the tiles (`reduce_tiled_map`) is the snapshot of
+    the gathered map (`reduce_map`), pixels and extent to the bit, also where empty tiles lie
+    inside the map's box (two islands of scans far apart)."""
+    from slamlab.slam.replay import reduce_map, reduce_tiled_map
+
+    rng = np.random.default_rng(7)
+    maps = TiledMaps(settings, 2)
+    for centre in ((0.0, 0.0), (9.0, 5.0)):
+        for _ in range(3):
+            poses = np.array([[centre[0] + rng.uniform(-1, 1), centre[1] + rng.uniform(-1, 1), rng.uniform(-np.pi, np.pi)]] * 2)
+            maps.insert_scan(poses, *_scan(rng, m=60, max_r=2.5))
+    rr, cc = np.nonzero(maps.table[1] != EMPTY)
+    assert (maps.table[1][rr.min():rr.max() + 1, cc.min():cc.max() + 1] == EMPTY).any()  # a gap inside the box
+    want = reduce_map(maps.to_image(1, decoded=False), max_px, unit=maps.lo_unit)
+    got = reduce_tiled_map(maps, 1, max_px)
+    assert np.array_equal(got[0], want[0]) and got[1] == want[1]
+    assert len(np.unique(want[0])) > 3  # free, occupied and unknown blocks all there
+

@@ -168,12 +168,10 @@ def run_slam(
         maps.update(poses, pts, best)
         last = k == n_steps - 1
         want_snapshot = replay is not None and replay.wants(k)
-        if last or want_snapshot:  # one image for both: a large RBPF map takes a while to gather
-            image = maps.image(best)
-            if last:
-                final_map = image  # before a resample renumbers the particles' maps
-            if want_snapshot:
-                replay.add(k, poses, best, points_to_world(pts.xy, poses[best]), image, maps.unit)
+        if last:
+            final_map = maps.image(best)  # before a resample renumbers the particles' maps
+        if want_snapshot:
+            replay.add(k, poses, best, points_to_world(pts.xy, poses[best]), maps.snapshot(best))
         neff = effective_sample_size(w)
         resampled = False
         if slam and n > 1 and c.resampler.should_resample(w):

@@ -24,6 +24,7 @@ from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
 from slamlab.slam.grid import MapSettings, OccupancyGrid
 from slamlab.slam.matcher import Matcher
+from slamlab.slam.replay import reduce_map, reduce_tiled_map
 from slamlab.slam.scan import ScanPoints, points_to_world
 from slamlab.slam.tiles import TiledMaps
 
@@ -61,6 +62,10 @@ class ParticleMaps(ABC):
     def unit(self) -> float:
         """Log-odds of one step of `image`'s values (1.0: they are log-odds)."""
         return 1.0
+
+    def snapshot(self, best: int) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+        """Particle `best`'s map reduced for the replay (`replay.reduce_map`)."""
+        return reduce_map(self.image(best), unit=self.unit)
 
     @abstractmethod
     def memory(self) -> dict:
@@ -131,6 +136,9 @@ class PerParticleMaps(ParticleMaps):
     @property
     def unit(self) -> float:
         return self.maps.lo_unit
+
+    def snapshot(self, best: int) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+        return reduce_tiled_map(self.maps, best)  # from the tiles, without gathering the map
 
     def memory(self) -> dict:
         m = self.maps

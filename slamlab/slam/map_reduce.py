@@ -61,3 +61,68 @@ def known_bounds(data, eps):
         c0 = min(c0, first)
         c1 = max(c1, last + 1)
     return r0, r1, c0, c1
+
+
+@numba.njit(cache=True)
+def tiled_known_bounds(tab, pool, tile, eps):
+    """`known_bounds` of the map a particle's tile table `tab` (TH, TW) of `pool` (cap, tile,
+    tile) tiles describes, in the table's cells, reading only its written tiles (index 0 is
+    the all-zero empty tile)."""
+    TH, TW = tab.shape
+    r0, r1, c0, c1 = TH * tile, 0, TW * tile, 0
+    for tr in range(TH):
+        for tc in range(TW):
+            t = tab[tr, tc]
+            if t == 0:
+                continue
+            for i in range(tile):
+                for j in range(tile):
+                    if abs(pool[t, i, j]) > eps:
+                        r = tr * tile + i
+                        c = tc * tile + j
+                        r0 = min(r0, r)
+                        r1 = max(r1, r + 1)
+                        c0 = min(c0, c)
+                        c1 = max(c1, c + 1)
+    return r0, r1, c0, c1
+
+
+@numba.njit(cache=True)
+def tiled_block_max(tab, pool, tile, r0, r1, c0, c1, k):
+    """`block_max_1pass` of the table's cells [r0, r1) x [c0, c1) (as a dense image of the
+    table, empty tiles reading 0), without gathering them: each written tile's cells go
+    straight to their blocks, and an empty tile adds its zeros to the blocks it overlaps."""
+    h = (r1 - r0 + k - 1) // k
+    w = (c1 - c0 + k - 1) // k
+    out = np.empty((h, w), dtype=pool.dtype)
+    seen = np.zeros((h, w), dtype=np.bool_)
+    for tr in range(r0 // tile, (r1 - 1) // tile + 1):
+        ra = max(r0, tr * tile)
+        rb = min(r1, (tr + 1) * tile)
+        for tc in range(c0 // tile, (c1 - 1) // tile + 1):
+            ca = max(c0, tc * tile)
+            cb = min(c1, (tc + 1) * tile)
+            t = tab[tr, tc]
+            if t == 0:
+                for R in range((ra - r0) // k, (rb - 1 - r0) // k + 1):
+                    for C in range((ca - c0) // k, (cb - 1 - c0) // k + 1):
+                        if not seen[R, C] or out[R, C] < 0:
+                            out[R, C] = 0
+                            seen[R, C] = True
+                continue
+            for r in range(ra, rb):
+                R = (r - r0) // k
+                for c in range(ca, cb):
+                    C = (c - c0) // k
+                    v = pool[t, r - tr * tile, c - tc * tile]
+                    if not seen[R, C] or v > out[R, C]:
+                        out[R, C] = v
+                        seen[R, C] = True
+    # blocks reaching past the box are padded with 0, as block_max_1pass
+    if (r1 - r0) % k:
+        for C in range(w):
+            out[h - 1, C] = max(out[h - 1, C], 0)
+    if (c1 - c0) % k:
+        for R in range(h):
+            out[R, w - 1] = max(out[R, w - 1], 0)
+    return out
