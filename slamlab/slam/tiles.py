@@ -290,7 +290,7 @@ def tiled_field_update(table, p, pool_lo, pool_f, ref, free, rel, used, thresh, 
 
 
 @numba.njit(cache=True, parallel=True)
-def count_fresh_tiles(table, ref, which, poses, pts, origin, ox, oy, inv_res, out):
+def count_fresh_tiles(table, ref, which, poses, pts, origin, ox, oy, inv_res, out, marks, listed):
     """Upper bound of the fresh tiles each particle of `which` can take when the scan is
     ray-cast from its pose (written to `out[j]`): the tiles it does not own alone (empty or
     shared) among those within one tile of its beams.
@@ -304,7 +304,9 @@ def count_fresh_tiles(table, ref, which, poses, pts, origin, ox, oy, inv_res, ou
     half = 0.5 * TILE / inv_res  # sample spacing (m)
     for j in numba.prange(which.shape[0]):
         i = which[j]
-        mark = np.zeros((TH, TW), dtype=np.uint8)
+        # marks[j] (TH, TW) is all zero on entry and left so (only listed tiles are marked),
+        # so a step costs its beams' samples, not a table-sized fill per particle
+        mark = marks[j]
         x = poses[i, 0]
         y = poses[i, 1]
         c = math.cos(poses[i, 2])
@@ -312,7 +314,7 @@ def count_fresh_tiles(table, ref, which, poses, pts, origin, ox, oy, inv_res, ou
         sx = x + c * origin[0] - s * origin[1]
         sy = y + s * origin[0] + c * origin[1]
         # 1. list the tiles the beams' samples fall in, each once (mark 1) ...
-        listed = np.empty(TH * TW, dtype=np.int32)  # tile row * TW + tile column
+        lst = listed[j]  # tile row * TW + tile column
         nl = 0
         for k in range(pts.shape[0]):
             ex = x + c * pts[k, 0] - s * pts[k, 1]
@@ -327,14 +329,14 @@ def count_fresh_tiles(table, ref, which, poses, pts, origin, ox, oy, inv_res, ou
                 tc = min(max(int(math.floor((px - ox) * inv_res)) >> TILE_SHIFT, 0), TW - 1)
                 if mark[tr, tc] == 0:
                     mark[tr, tc] = 1
-                    listed[nl] = tr * TW + tc
+                    lst[nl] = tr * TW + tc
                     nl += 1
         # ... 2. then count each tile of their 3 x 3 blocks once (mark 2) that p does not own
         # alone: one mark read per sample and nine per listed tile, not nine per sample
         n = 0
         for h in range(nl):
-            tr = listed[h] // TW
-            tc = listed[h] % TW
+            tr = lst[h] // TW
+            tc = lst[h] % TW
             for a in range(max(tr - 1, 0), min(tr + 2, TH)):
                 for b in range(max(tc - 1, 0), min(tc + 2, TW)):
                     if mark[a, b] != 2:
@@ -343,6 +345,13 @@ def count_fresh_tiles(table, ref, which, poses, pts, origin, ox, oy, inv_res, ou
                         if t == EMPTY or ref[t] != 1:
                             n += 1
         out[j] = n
+        # 3. clear what was marked: the listed tiles' 3 x 3 blocks
+        for h in range(nl):
+            tr = lst[h] // TW
+            tc = lst[h] % TW
+            for a in range(max(tr - 1, 0), min(tr + 2, TH)):
+                for b in range(max(tc - 1, 0), min(tc + 2, TW)):
+                    mark[a, b] = 0
 
 
 @numba.njit(cache=True, parallel=True)
@@ -514,6 +523,8 @@ class TiledMaps:
         # scratch of insert_scan: cells (2, particles, points) and flips (particles, K, 3)
         self._rc = np.empty((2, 0, 0), dtype=np.int64)
         self._fl = np.empty((0, 0, 3), dtype=np.int64)
+        self._mark = np.zeros((0, 0, 0), dtype=np.uint8)
+        self._listed = np.empty((0, 0), dtype=np.int32)
         self.grow_count = 0
 
     # ---- geometry -----------------------------------------------------------------------
@@ -614,7 +625,8 @@ class TiledMaps:
         self.ensure(px.min() - rmax, py.min() - rmax, px.max() + rmax, py.max() + rmax)
         x0, y0, inv = float(self.origin[0]), float(self.origin[1]), 1.0 / self.res
         need = np.zeros(len(which), dtype=np.int64)
-        count_fresh_tiles(self.table, self.ref, which, poses, pts, origin, x0, y0, inv, need)
+        marks, listed = self._marks(len(which))
+        count_fresh_tiles(self.table, self.ref, which, poses, pts, origin, x0, y0, inv, need, marks, listed)
         starts = np.concatenate([[0], np.cumsum(need)]).astype(np.int64)
         self._reserve(int(starts[-1]))
         used = np.zeros(len(which), dtype=np.int64)
@@ -657,6 +669,15 @@ class TiledMaps:
         self._free_buf[new_lo:new_lo + len(freed)] = freed
         self._free_buf[new_lo + len(freed):lo + total] = untaken
         self._free_lo = new_lo
+
+    def _marks(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """`count_fresh_tiles`' per-particle tile marks (n, TH, TW), all zero between calls,
+        and tile lists (n, TH * TW); remade when the table grows."""
+        shape = (n,) + self.table.shape[1:]
+        if self._mark.shape != shape:
+            self._mark = np.zeros(shape, dtype=np.uint8)
+            self._listed = np.empty((n, shape[1] * shape[2]), dtype=np.int32)
+        return self._mark, self._listed
 
     def _scratch(self, n: int, m: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Reused work arrays for `insert_scans` (grown, never shrunk)."""
