@@ -48,12 +48,12 @@ from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import Matcher
 from slamlab.slam.motion import MotionModel
 from slamlab.slam.replay import ReplayRecorder, snapshot_steps
-from slamlab.slam.tiles import decode_image
 from slamlab.slam.resample import Resampler
 from slamlab.slam.result import ParticleHistory, SlamResult
 from slamlab.slam.scan import points_to_world, range_limits, scan_to_points
 from slamlab.slam.spread import spread_columns
 from slamlab.slam.steps import fill_between_steps, select_steps
+from slamlab.slam.tiles import decode_image
 from slamlab.slam.weighting import Weighting, effective_sample_size
 
 log = logging.getLogger(__name__)
