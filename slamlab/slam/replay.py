@@ -77,12 +77,9 @@ def reduce_tiled_map(maps: TiledMaps, p: int, max_px: int = MAX_MAP_PX) -> tuple
 
     tab = maps.table[p]
     pool = maps.pool_lo
-    rr, cc = np.nonzero(tab)
-    if len(rr) == 0:
-        rr, cc = np.array([0]), np.array([0])
-    # the origin `to_image` gives its crop (its first written tile), so extents match to the bit
-    crop_r, crop_c = int(rr.min()) * TILE, int(cc.min()) * TILE
-    origin = (float(maps.origin[0] + crop_c * maps.res), float(maps.origin[1] + crop_r * maps.res))
+    # `to_image`'s crop and origin, so extents match to the bit
+    (tr0, _, tc0, _), origin = maps.written_tiles(p)
+    crop_r, crop_c = tr0 * TILE, tc0 * TILE
     r0, r1, c0, c1 = tiled_known_bounds(tab, pool, TILE, pool.dtype.type(1e-6))
     if r1 == 0:
         return _unknown(maps.res, origin)
