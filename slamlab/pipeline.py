@@ -151,6 +151,7 @@ def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> RunMet
         matcher_map_reads=int(result.extras.get("matcher_map_reads", 0)),
         # MB held by the map(s): shared tiles counted once (rbpf); at the end and at peak
         map_memory={k: v for k, v in result.extras.items() if k.startswith("map_")},
+        odometry_scale=result.extras.get("odometry_scale"),
     )
 
 

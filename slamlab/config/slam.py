@@ -31,6 +31,7 @@ class CourseMotionConfig:
     per_distance_m: float = 0.1  # reference translation (m)
     per_angle_rad: float = 0.1  # reference rotation (rad)
     growth: str = "linear"  # linear (the course: sigma x k) | sqrt (sigma x sqrt(k): spread per metre independent of the step size)
+    scale_gain_per_m: float = 0.0  # learn a per-particle odometry scale at this gain (1/m; slam/odometry_scale.py); 0 = off
 
     def __post_init__(self) -> None:
         g = self.GROUP
@@ -40,6 +41,7 @@ class CourseMotionConfig:
         require_nonnegative(g, "sigma_theta_rad", self.sigma_theta_rad)
         require_positive(g, "per_distance_m", self.per_distance_m)
         require_positive(g, "per_angle_rad", self.per_angle_rad)
+        require_nonnegative(g, "scale_gain_per_m", self.scale_gain_per_m)
 
 
 @dataclass
@@ -54,9 +56,10 @@ class Odometry4MotionConfig:
     alpha2: float = 0.01  # rotation noise from translation (rad^2 / m^2)
     alpha3: float = 0.05  # translation noise from translation (m^2 / m^2)
     alpha4: float = 0.01  # translation noise from rotation (m^2 / rad^2)
+    scale_gain_per_m: float = 0.0  # learn a per-particle odometry scale at this gain (1/m; slam/odometry_scale.py); 0 = off
 
     def __post_init__(self) -> None:
-        for name in ("alpha1", "alpha2", "alpha3", "alpha4"):
+        for name in ("alpha1", "alpha2", "alpha3", "alpha4", "scale_gain_per_m"):
             require_nonnegative(self.GROUP, name, getattr(self, name))
 
 

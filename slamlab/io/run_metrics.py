@@ -52,6 +52,7 @@ class RunMetrics:
     weighting_overflows: int | None = None
     matcher_map_reads: int | None = None
     map_memory: dict[str, Any] | None = None  # MB and tile counts of the map(s)
+    odometry_scale: float | None = None  # the best particle's learnt odometry scale at the end (motion.scale_gain_per_m > 0)
     cpu_time_s: float | None = None  # SLAM filter loop, CPU (s)
     # --- accuracy sections (slamlab.eval); absent where the dataset cannot score them ---
     trajectory: dict[str, Any] | None = None

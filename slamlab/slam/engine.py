@@ -47,6 +47,7 @@ from slamlab.slam.filters import FilterKind
 from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import Matcher
 from slamlab.slam.motion import MotionModel
+from slamlab.slam.odometry_scale import learn_scales, scaled_start
 from slamlab.slam.replay import ReplayRecorder, snapshot_steps
 from slamlab.slam.resample import Resampler
 from slamlab.slam.result import ParticleHistory, SlamResult
@@ -131,6 +132,8 @@ def run_slam(
     rng = np.random.Generator(np.random.PCG64(c.seed))
 
     poses = np.tile(start, (n, 1))
+    # per-particle odometry scale (`odometry_scale.py`); None when the motion model learns none
+    scales = np.ones(n) if slam and c.motion.scale_gain_per_m > 0 else None
     logw = np.full(n, -np.log(n))
     hist_poses = np.empty((n_steps, n, 3))
     hist_parent = np.empty((n_steps, n), dtype=np.int32)
@@ -148,16 +151,22 @@ def run_slam(
         if k > 0:
             inc = se2_between(odom[step_scans[k - 1]], odom[si])
             if slam:
+                before = poses
+                if scales is not None:
+                    poses = scaled_start(poses, scales, inc)
                 poses = c.motion.sample(poses, inc, rng)
                 if len(pts.xy):
                     poses, scores = maps.match(c.matcher, poses, pts, c.filter.step_scale(inc))
                     logw = c.weighting.update(logw, scores)
+                if scales is not None:
+                    scales = learn_scales(scales, before, poses, inc, c.motion.scale_gain_per_m)
             elif c.mode == "predict":
                 poses = c.motion.sample(poses, inc, rng)
             else:
                 poses = se2_compose(poses, inc)
         w = np.exp(logw)
         best = int(np.argmax(w))
+        scales_at_weigh = scales  # before resampling renumbers the particles
         hist_poses[k] = poses
         hist_parent[k] = parent
         causal[k] = weighted_mean_pose(poses, w) if c.filter.online == "mean" else poses[best]
@@ -177,6 +186,8 @@ def run_slam(
         if slam and n > 1 and c.resampler.should_resample(w):
             idx = c.resampler.indices(w, rng)
             poses = poses[idx]
+            if scales is not None:
+                scales = scales[idx]
             maps.resample(idx)
             parent = idx.astype(np.int32)
             logw = np.full(n, -np.log(n))
@@ -187,6 +198,8 @@ def run_slam(
         rows["neff"].append(neff)
         rows["resampled"].append(resampled)
         rows["best_weight"].append(float(w[best]))
+        if scales is not None:
+            rows.setdefault("odometry_scale", []).append(float(scales_at_weigh[best]))
         rows["step_time_s"].append(time.perf_counter() - t0)
         if progress is not None and progress(len(scans) if k == n_steps - 1 else int(si) + 1, len(scans)):
             if k < n_steps - 1:  # asked to stop (Ctrl-C): the result of a run that ended here
@@ -246,6 +259,7 @@ def run_slam(
             "neff_mean": float(np.mean(rows["neff"])),
             "neff_min": float(np.min(rows["neff"])),
             "filter": c.filter.name,
+            **({} if scales is None else {"odometry_scale": float(scales[best])}),
             "matcher_map_reads": int(c.matcher.map_reads) if slam else 0,
             **map_memory,
         },

@@ -23,7 +23,11 @@ from slamlab.geometry import FloatArray, se2_compose, wrap_angle
 
 class MotionModel(ABC):
     """Interface: `sample(poses (N,3), increment (3,), rng) -> new poses (N,3)`, and the
-    covariance of the noisy increment it samples (for the expected spread, `slam/spread.py`)."""
+    covariance of the noisy increment it samples (for the expected spread, `slam/spread.py`).
+    `scale_gain_per_m` > 0: the filter learns a per-particle odometry scale at this gain
+    (1/m; `slam/odometry_scale.py`); 0: the odometry's distances are taken as they are."""
+
+    scale_gain_per_m: float = 0.0
 
     @abstractmethod
     def sample(self, poses: FloatArray, increment: FloatArray, rng: np.random.Generator) -> FloatArray:
@@ -56,7 +60,9 @@ class CourseMotion(MotionModel):
         per_distance_m: float = _Course.per_distance_m,
         per_angle_rad: float = _Course.per_angle_rad,
         growth: str = _Course.growth,
+        scale_gain_per_m: float = _Course.scale_gain_per_m,
     ) -> None:
+        self.scale_gain_per_m = float(scale_gain_per_m)
         self.growth = growth
         self.sigma_xy_m = float(sigma_xy_m)
         self.sigma_theta_rad = float(sigma_theta_rad)
@@ -96,7 +102,8 @@ class Odometry4Motion(MotionModel):
 
     # defaults and checks: `slamlab.config.slam.Odometry4MotionConfig`
     def __init__(self, alpha1: float = _Odo4.alpha1, alpha2: float = _Odo4.alpha2, alpha3: float = _Odo4.alpha3,
-                 alpha4: float = _Odo4.alpha4) -> None:
+                 alpha4: float = _Odo4.alpha4, scale_gain_per_m: float = _Odo4.scale_gain_per_m) -> None:
+        self.scale_gain_per_m = float(scale_gain_per_m)
         self.a1, self.a2, self.a3, self.a4 = float(alpha1), float(alpha2), float(alpha3), float(alpha4)
 
     def _decompose(self, increment: FloatArray) -> tuple[float, float, float, float, float, float]:
