@@ -12,6 +12,8 @@ from __future__ import annotations
 import base64
 import io
 import json
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,12 +84,18 @@ def replay_section(run: RunDir) -> ReplaySection | None:
     h = max(1, int(round(FRAME_PX * (window[3] - window[2]) / span)))
     window = (window[0], window[1], window[2], window[2] + h * (window[1] - window[0]) / w)  # square pixels
 
-    frames, snaps = [], []
+    snaps = []
     pix_at = np.concatenate([[0], np.cumsum(shapes[:, 0] * shapes[:, 1])])
     scan_at = np.concatenate([[0], np.cumsum(counts)])
-    for i, (sh, ext) in enumerate(zip(shapes, extents)):
-        pixels = z["map_pixels"][pix_at[i]:pix_at[i + 1]].reshape(int(sh[0]), int(sh[1]))
-        frames.append(_png_uri(frame_image(pixels, ext, window, w, h)))
+
+    def frame(i: int) -> str:
+        pixels = z["map_pixels"][pix_at[i]:pix_at[i + 1]].reshape(int(shapes[i, 0]), int(shapes[i, 1]))
+        return _png_uri(frame_image(pixels, extents[i], window, w, h))
+
+    # a building's 100 frames take seconds to encode; Pillow's encoder lets go of the GIL
+    with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
+        frames = list(pool.map(frame, range(len(shapes))))
+    for i in range(len(shapes)):
         best = int(z["best"][i])
         snaps.append({
             "t": round(float(z["t"][i] - z["t"][0]), 2),

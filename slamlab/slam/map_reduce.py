@@ -87,34 +87,34 @@ def tiled_known_bounds(tab, pool, tile, eps):
     return r0, r1, c0, c1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def tiled_block_max(tab, pool, tile, r0, r1, c0, c1, k):
     """`block_max_1pass` of the table's cells [r0, r1) x [c0, c1) (as a dense image of the
     table, empty tiles reading 0), without gathering them: each written tile's cells go
-    straight to their blocks, and an empty tile adds its zeros to the blocks it overlaps."""
+    straight to their blocks, and an empty tile adds its zeros to the blocks it overlaps.
+    Rows of blocks run in parallel (each is one thread's alone; a max is order-free, so
+    the result does not depend on the thread count)."""
     h = (r1 - r0 + k - 1) // k
     w = (c1 - c0 + k - 1) // k
     out = np.empty((h, w), dtype=pool.dtype)
     seen = np.zeros((h, w), dtype=np.bool_)
-    for tr in range(r0 // tile, (r1 - 1) // tile + 1):
-        ra = max(r0, tr * tile)
-        rb = min(r1, (tr + 1) * tile)
-        for tc in range(c0 // tile, (c1 - 1) // tile + 1):
-            ca = max(c0, tc * tile)
-            cb = min(c1, (tc + 1) * tile)
-            t = tab[tr, tc]
-            if t == 0:
-                for R in range((ra - r0) // k, (rb - 1 - r0) // k + 1):
+    for R in numba.prange(h):
+        for r in range(r0 + R * k, min(r0 + (R + 1) * k, r1)):
+            tr = r // tile
+            i = r - tr * tile
+            for tc in range(c0 // tile, (c1 - 1) // tile + 1):
+                ca = max(c0, tc * tile)
+                cb = min(c1, (tc + 1) * tile)
+                t = tab[tr, tc]
+                if t == 0:
                     for C in range((ca - c0) // k, (cb - 1 - c0) // k + 1):
                         if not seen[R, C] or out[R, C] < 0:
                             out[R, C] = 0
                             seen[R, C] = True
-                continue
-            for r in range(ra, rb):
-                R = (r - r0) // k
+                    continue
                 for c in range(ca, cb):
                     C = (c - c0) // k
-                    v = pool[t, r - tr * tile, c - tc * tile]
+                    v = pool[t, i, c - tc * tile]
                     if not seen[R, C] or v > out[R, C]:
                         out[R, C] = v
                         seen[R, C] = True
