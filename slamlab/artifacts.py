@@ -15,7 +15,7 @@ from slamlab.frames import GridImage
 
 # The writers live in slamlab.io (below datasets and texture, which use them too); they are
 # re-exported so a run's files are written through one namespace.
-from slamlab.io.atomic import TMP_MARK, atomic_path, remove_partials, write_bytes, write_json, write_npz, write_text  # noqa: F401
+from slamlab.io.atomic import TMP_MARK, atomic_path, remove_partials, write_bytes, write_json, write_npz, write_npz_fast, write_text  # noqa: F401
 from slamlab.io.rundir import RunFile, read_logodds  # noqa: F401
 from slamlab.io.tum import read_tum, tum_text, write_tum  # noqa: F401
 
@@ -67,33 +67,39 @@ def write_map(run_dir: Path, grid: GridImage) -> None:
     from slamlab.io.png import write_png
 
     run_dir = Path(run_dir)
-    # the npz's deflate and the PNG's run at once: zlib and Pillow's encoder let go of the
-    # GIL, and on a building's map each takes seconds
+    # map.png is the long pole on a building's map (one zlib stream of seconds, its bytes fixed:
+    # see below), so it starts at once; the npz's deflate and the PGM run beside it (zlib,
+    # Pillow and numpy's element-wise loops let go of the GIL)
     with ThreadPoolExecutor(max_workers=1) as pool:
-        raw = pool.submit(
-            write_npz,
-            run_dir / RunFile.MAP_LOGODDS,
-            data=np.asarray(grid.data, dtype=np.float32),  # no copy of a float32 map
-            resolution_m=np.float64(grid.resolution_m),
-            origin_xy=np.asarray(grid.origin_xy, dtype=np.float64),
-        )
-        img = map_image(grid.data)
+        others = pool.submit(_write_map_raw_and_ros, run_dir, grid)
         # map.png: Pillow alone; the bytes plt.imsave(cmap="gray", vmin=0, vmax=1) wrote before
         with atomic_path(run_dir / RunFile.MAP_PNG) as tmp:
             write_png(tmp, map_png_rgba(grid.data))
-        h, w = img.shape
-        write_bytes(run_dir / RunFile.MAP_PGM, f"P5\n{w} {h}\n255\n".encode("ascii") + img.tobytes())
-        ox, oy = grid.origin_xy
-        write_text(
-            run_dir / RunFile.MAP_YAML,
-            f"image: {RunFile.MAP_PGM}\n"
-            f"resolution: {grid.resolution_m:.6f}\n"
-            f"origin: [{ox:.6f}, {oy:.6f}, 0.0]\n"
-            "negate: 0\n"
-            f"occupied_thresh: {OCCUPIED_THRESH}\n"
-            f"free_thresh: {FREE_THRESH}\n",
-        )
-        raw.result()  # its error, if any, is raised here
+        others.result()  # its error, if any, is raised here
+
+
+def _write_map_raw_and_ros(run_dir: Path, grid: GridImage) -> None:
+    """map_logodds.npz (fast deflate: the arrays, not the zip's bytes, are what runs compare),
+    then map.pgm + map.yaml."""
+    write_npz_fast(
+        run_dir / RunFile.MAP_LOGODDS,
+        data=np.asarray(grid.data, dtype=np.float32),  # no copy of a float32 map
+        resolution_m=np.float64(grid.resolution_m),
+        origin_xy=np.asarray(grid.origin_xy, dtype=np.float64),
+    )
+    img = map_image(grid.data)
+    h, w = img.shape
+    write_bytes(run_dir / RunFile.MAP_PGM, f"P5\n{w} {h}\n255\n".encode("ascii") + img.tobytes())
+    ox, oy = grid.origin_xy
+    write_text(
+        run_dir / RunFile.MAP_YAML,
+        f"image: {RunFile.MAP_PGM}\n"
+        f"resolution: {grid.resolution_m:.6f}\n"
+        f"origin: [{ox:.6f}, {oy:.6f}, 0.0]\n"
+        "negate: 0\n"
+        f"occupied_thresh: {OCCUPIED_THRESH}\n"
+        f"free_thresh: {FREE_THRESH}\n",
+    )
 
 
 def read_map(run_dir: Path) -> GridImage:

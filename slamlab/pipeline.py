@@ -14,6 +14,7 @@ import time
 import traceback
 import warnings
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -312,26 +313,30 @@ def run_pipeline(
                 reporter.close()
         cpu_slam = time.process_time() - cpu_slam0
 
-        metrics = filter_metrics(seq, result, cfg)
-        metrics.cpu_time_s = cpu_slam
-        metrics = replace(metrics, **accuracy_metrics(seq, result))
-        consistency, consistency_series = consistency_metrics(seq, result.trajectory, result.log_odds, setup.components.map)
-        metrics.consistency = consistency
-
-        # SLAM results first: whatever happens to texture afterwards, these are kept.
-        artifacts.write_map(run_dir, result.log_odds)
-        run.write_trajectory(TrajectoryKind.SLAM, result.times, result.trajectory)
-        run.write_trajectory(TrajectoryKind.CAUSAL, result.times, result.causal)
-        run.write_trajectory(TrajectoryKind.ODOMETRY, result.times, result.odometry)
-        if seq.ground_truth is not None:
-            run.write_trajectory(TrajectoryKind.GROUNDTRUTH, result.times, seq.ground_truth.poses[: len(result.times)])
-        artifacts.write_steps(run_dir, result.steps)
-        artifacts.write_consistency(run_dir, consistency_series)
-        relations = relation_table(seq, result)
-        if relations is not None:
-            artifacts.write_table(run / RunFile.RELATIONS, relations)
-        write_recordings(run_dir, result, setup.run.record.first_scan)
-        run.write_manifest(build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
+        # SLAM results first: whatever happens to texture afterwards, these are kept. The map's
+        # PNG (seconds on a building: one zlib stream, Pillow lets go of the GIL) is written on
+        # a second thread while the metrics and the other files are made; leaving the block
+        # waits for it, also when something here fails, so nothing is written after cleanup.
+        with ThreadPoolExecutor(max_workers=1) as background:
+            map_written = background.submit(artifacts.write_map, run_dir, result.log_odds)
+            metrics = filter_metrics(seq, result, cfg)
+            metrics.cpu_time_s = cpu_slam
+            metrics = replace(metrics, **accuracy_metrics(seq, result))
+            consistency, consistency_series = consistency_metrics(seq, result.trajectory, result.log_odds, setup.components.map)
+            metrics.consistency = consistency
+            run.write_trajectory(TrajectoryKind.SLAM, result.times, result.trajectory)
+            run.write_trajectory(TrajectoryKind.CAUSAL, result.times, result.causal)
+            run.write_trajectory(TrajectoryKind.ODOMETRY, result.times, result.odometry)
+            if seq.ground_truth is not None:
+                run.write_trajectory(TrajectoryKind.GROUNDTRUTH, result.times, seq.ground_truth.poses[: len(result.times)])
+            artifacts.write_steps(run_dir, result.steps)
+            artifacts.write_consistency(run_dir, consistency_series)
+            relations = relation_table(seq, result)
+            if relations is not None:
+                artifacts.write_table(run / RunFile.RELATIONS, relations)
+            write_recordings(run_dir, result, setup.run.record.first_scan)
+            run.write_manifest(build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
+        map_written.result()  # its error, if any, is raised here
         if stopper.requested:
             raise KeyboardInterrupt
 

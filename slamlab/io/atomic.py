@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -71,6 +72,16 @@ def write_npz(path: Path, **arrays: np.ndarray) -> None:
     with atomic_path(path) as tmp:
         with tmp.open("wb") as f:
             np.savez_compressed(f, **arrays)
+
+
+def write_npz_fast(path: Path, **arrays: np.ndarray) -> None:
+    """`write_npz` at zlib level 1 instead of numpy's 6: a building's float32 map (176 MB)
+    deflates in 0.5 s instead of 2.0 s, to 10 MB instead of 7; np.load reads it the same."""
+    with atomic_path(path) as tmp:
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+            for name, value in arrays.items():
+                with zf.open(f"{name}.npy", "w", force_zip64=True) as f:
+                    np.lib.format.write_array(f, np.asanyarray(value), allow_pickle=False)
 
 
 def remove_partials(folder: Path) -> None:
