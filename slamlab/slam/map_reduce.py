@@ -63,14 +63,18 @@ def known_bounds(data, eps):
     return r0, r1, c0, c1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def tiled_known_bounds(tab, pool, tile, eps):
     """`known_bounds` of the map a particle's tile table `tab` (TH, TW) of `pool` (cap, tile,
     tile) tiles describes, in the table's cells, reading only its written tiles (index 0 is
-    the all-zero empty tile)."""
+    the all-zero empty tile). Rows of tiles run in parallel, each into its own bounds."""
     TH, TW = tab.shape
-    r0, r1, c0, c1 = TH * tile, 0, TW * tile, 0
-    for tr in range(TH):
+    rows0 = np.full(TH, TH * tile, dtype=np.int64)
+    rows1 = np.zeros(TH, dtype=np.int64)
+    cols0 = np.full(TH, TW * tile, dtype=np.int64)
+    cols1 = np.zeros(TH, dtype=np.int64)
+    for tr in numba.prange(TH):
+        r0, r1, c0, c1 = TH * tile, 0, TW * tile, 0
         for tc in range(TW):
             t = tab[tr, tc]
             if t == 0:
@@ -84,21 +88,29 @@ def tiled_known_bounds(tab, pool, tile, eps):
                         r1 = max(r1, r + 1)
                         c0 = min(c0, c)
                         c1 = max(c1, c + 1)
-    return r0, r1, c0, c1
+        rows0[tr], rows1[tr], cols0[tr], cols1[tr] = r0, r1, c0, c1
+    return rows0.min(), rows1.max(), cols0.min(), cols1.max()
+
+
+def lowest_value(dtype: np.dtype) -> float | int:
+    """The least value of `dtype` (-inf for floats): where a running max starts."""
+    dtype = np.dtype(dtype)
+    return -np.inf if dtype.kind == "f" else int(np.iinfo(dtype).min)
 
 
 @numba.njit(cache=True, parallel=True)
-def tiled_block_max(tab, pool, tile, r0, r1, c0, c1, k):
+def tiled_block_max(tab, pool, tile, r0, r1, c0, c1, k, lowest):
     """`block_max_1pass` of the table's cells [r0, r1) x [c0, c1) (as a dense image of the
     table, empty tiles reading 0), without gathering them: each written tile's cells go
     straight to their blocks, and an empty tile adds its zeros to the blocks it overlaps.
     Rows of blocks run in parallel (each is one thread's alone; a max is order-free, so
-    the result does not depend on the thread count)."""
+    the result does not depend on the thread count). `lowest`: the pool dtype's least value
+    (`lowest_value`), where each block's max starts."""
     h = (r1 - r0 + k - 1) // k
     w = (c1 - c0 + k - 1) // k
     out = np.empty((h, w), dtype=pool.dtype)
-    seen = np.zeros((h, w), dtype=np.bool_)
     for R in numba.prange(h):
+        out[R, :] = lowest  # every block holds a cell of the box, so each ends as a real max
         for r in range(r0 + R * k, min(r0 + (R + 1) * k, r1)):
             tr = r // tile
             i = r - tr * tile
@@ -108,16 +120,23 @@ def tiled_block_max(tab, pool, tile, r0, r1, c0, c1, k):
                 t = tab[tr, tc]
                 if t == 0:
                     for C in range((ca - c0) // k, (cb - 1 - c0) // k + 1):
-                        if not seen[R, C] or out[R, C] < 0:
+                        if out[R, C] < 0:
                             out[R, C] = 0
-                            seen[R, C] = True
                     continue
-                for c in range(ca, cb):
-                    C = (c - c0) // k
-                    v = pool[t, i, c - tc * tile]
-                    if not seen[R, C] or v > out[R, C]:
-                        out[R, C] = v
-                        seen[R, C] = True
+                # the tile row's cells block by block: a plain max loop per block (no
+                # division or branch per cell)
+                row = pool[t, i]
+                base = tc * tile
+                C = (ca - c0) // k
+                c = ca
+                while c < cb:
+                    e = min(cb, c0 + (C + 1) * k)
+                    m = out[R, C]
+                    for q in range(c - base, e - base):
+                        m = max(m, row[q])
+                    out[R, C] = m
+                    c = e
+                    C += 1
     # blocks reaching past the box are padded with 0, as block_max_1pass
     if (r1 - r0) % k:
         for C in range(w):

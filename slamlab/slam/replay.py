@@ -72,7 +72,7 @@ def reduce_tiled_map(maps: TiledMaps, p: int, max_px: int = MAX_MAP_PX) -> tuple
     """`reduce_map(maps.to_image(p, decoded=False), max_px, maps.lo_unit)`, the same bytes,
     read straight from particle p's tiles: no whole-map gather at each snapshot (on a
     building's map the gather and the reduction took 3.7 s of a 62 s run)."""
-    from slamlab.slam.map_reduce import tiled_block_max, tiled_known_bounds
+    from slamlab.slam.map_reduce import lowest_value, tiled_block_max, tiled_known_bounds
     from slamlab.slam.tiles import TILE
 
     tab = maps.table[p]
@@ -84,7 +84,7 @@ def reduce_tiled_map(maps: TiledMaps, p: int, max_px: int = MAX_MAP_PX) -> tuple
     if r1 == 0:
         return _unknown(maps.res, origin)
     k = _block(r1 - r0, c1 - c0, max_px)
-    crop = tiled_block_max(tab, pool, TILE, r0, r1, c0, c1, k)
+    crop = tiled_block_max(tab, pool, TILE, r0, r1, c0, c1, k, pool.dtype.type(lowest_value(pool.dtype)))
     return _free_ness(crop, k, r0 - crop_r, c0 - crop_c, maps.res, origin, maps.lo_unit)
 
 
