@@ -122,13 +122,12 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, rel, used,
             ir = r & TILE_MASK
             ic = c & TILE_MASK
             old = pool_lo[t, ir, ic]
-            new = old + l_free
-            if new < lmin:
-                new = lmin
-            if new != old:  # a cell already at the clamp changes nothing: its tile stays shared
-                if not own:
-                    t = _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, rel, used)
-                    own = True
+            new = max(old + l_free, lmin)
+            if own:  # written even when unchanged: no branch on the cell's value (most cells)
+                pool_lo[t, ir, ic] = new
+            elif new != old:  # a cell already at the clamp changes nothing: its tile stays shared
+                t = _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, rel, used)
+                own = True
                 pool_lo[t, ir, ic] = new
             if old > thresh and not new > thresh:
                 flips[nflip, 0] = r
@@ -188,9 +187,9 @@ def _splat(table, p, pool_lo, pool_f, ref, free, rel, used, kernel, r, c, b0, b1
             t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, rel, used)
             for rr in range(ra, rb):
                 for cc in range(ca, cb):
-                    v = kernel[rr - r + R, cc - c + R]
-                    if v > pool_f[t, rr & TILE_MASK, cc & TILE_MASK]:
-                        pool_f[t, rr & TILE_MASK, cc & TILE_MASK] = v
+                    i = rr & TILE_MASK
+                    j = cc & TILE_MASK
+                    pool_f[t, i, j] = max(pool_f[t, i, j], kernel[rr - r + R, cc - c + R])
 
 
 @numba.njit(cache=True)
@@ -207,9 +206,7 @@ def _recompute(table, p, pool_lo, pool_f, ref, free, rel, used, thresh, kernel, 
             if pool_lo[table[p, r >> TILE_SHIFT, c >> TILE_SHIFT], r & TILE_MASK, c & TILE_MASK] > thresh:
                 for rr in range(max(r - R, b0), min(r + R + 1, b1)):
                     for cc in range(max(c - R, d0), min(c + R + 1, d1)):
-                        v = kernel[rr - r + R, cc - c + R]
-                        if v > new[rr - b0, cc - d0]:
-                            new[rr - b0, cc - d0] = v
+                        new[rr - b0, cc - d0] = max(new[rr - b0, cc - d0], kernel[rr - r + R, cc - c + R])
     for tr in range(b0 >> TILE_SHIFT, ((b1 - 1) >> TILE_SHIFT) + 1):
         for tc in range(d0 >> TILE_SHIFT, ((d1 - 1) >> TILE_SHIFT) + 1):
             t = table[p, tr, tc]
@@ -217,11 +214,15 @@ def _recompute(table, p, pool_lo, pool_f, ref, free, rel, used, thresh, kernel, 
             rb = min(b1, (tr + 1) << TILE_SHIFT)
             ca = max(d0, tc << TILE_SHIFT)
             cb = min(d1, (tc + 1) << TILE_SHIFT)
+            own = t != EMPTY and ref[t] == 1
             for rr in range(ra, rb):
                 for cc in range(ca, cb):
                     v = new[rr - b0, cc - d0]
-                    if v != pool_f[t, rr & TILE_MASK, cc & TILE_MASK]:
+                    if own:  # written even when unchanged: no branch on the value
+                        pool_f[t, rr & TILE_MASK, cc & TILE_MASK] = v
+                    elif v != pool_f[t, rr & TILE_MASK, cc & TILE_MASK]:
                         t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, rel, used)
+                        own = True
                         pool_f[t, rr & TILE_MASK, cc & TILE_MASK] = v
 
 
