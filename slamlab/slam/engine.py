@@ -166,7 +166,8 @@ def run_slam(
                 poses = se2_compose(poses, inc)
         w = np.exp(logw)
         best = int(np.argmax(w))
-        scales_at_weigh = scales  # before resampling renumbers the particles
+        if scales is not None:  # the best particle's, before resampling renumbers them
+            rows.setdefault("odometry_scale", []).append(float(scales[best]))
         hist_poses[k] = poses
         hist_parent[k] = parent
         causal[k] = weighted_mean_pose(poses, w) if c.filter.online == "mean" else poses[best]
@@ -198,8 +199,6 @@ def run_slam(
         rows["neff"].append(neff)
         rows["resampled"].append(resampled)
         rows["best_weight"].append(float(w[best]))
-        if scales is not None:
-            rows.setdefault("odometry_scale", []).append(float(scales_at_weigh[best]))
         rows["step_time_s"].append(time.perf_counter() - t0)
         if progress is not None and progress(len(scans) if k == n_steps - 1 else int(si) + 1, len(scans)):
             if k < n_steps - 1:  # asked to stop (Ctrl-C): the result of a run that ended here
@@ -259,7 +258,7 @@ def run_slam(
             "neff_mean": float(np.mean(rows["neff"])),
             "neff_min": float(np.min(rows["neff"])),
             "filter": c.filter.name,
-            **({} if scales is None else {"odometry_scale": float(scales[best])}),
+            **({} if scales is None else {"odometry_scale": rows["odometry_scale"][-1]}),
             "matcher_map_reads": int(c.matcher.map_reads) if slam else 0,
             **map_memory,
         },
