@@ -14,7 +14,7 @@ import time
 import traceback
 import warnings
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -273,6 +273,24 @@ def run_texture_stage(seq: Sequence, result: SlamResult, setup: RunSetup, run_di
     return out
 
 
+def _finish_background(pool: ThreadPoolExecutor, job: Future, failing: bool = False) -> None:
+    """Wait for `job` to end, through any Ctrl-C meanwhile (re-raised once it has ended), so a
+    run folder is never cleaned up while its thread still writes into it. `failing`: an error
+    is already on its way up; the job's own error, which it would hide, is logged."""
+    interrupted = False
+    while True:
+        try:
+            wait([job])
+            break
+        except KeyboardInterrupt:
+            interrupted = True
+    pool.shutdown()
+    if failing and job.exception() is not None:
+        log.error("writing the map failed too: %s", job.exception())
+    if interrupted:
+        raise KeyboardInterrupt
+
+
 def run_pipeline(
     cfg: DictConfig,
     run_dir: Path,
@@ -315,10 +333,12 @@ def run_pipeline(
 
         # SLAM results first: whatever happens to texture afterwards, these are kept. The map's
         # PNG (seconds on a building: one zlib stream, Pillow lets go of the GIL) is written on
-        # a second thread while the metrics and the other files are made; leaving the block
-        # waits for it, also when something here fails, so nothing is written after cleanup.
-        with ThreadPoolExecutor(max_workers=1) as background:
-            map_written = background.submit(artifacts.write_map, run_dir, result.log_odds)
+        # a second thread while the metrics and the other files are made; the thread is waited
+        # for before anything else happens, also when something here fails or Ctrl-C comes
+        # (`_finish_background`), so nothing is written after the cleanup below.
+        background = ThreadPoolExecutor(max_workers=1)
+        map_written = background.submit(artifacts.write_map, run_dir, result.log_odds)
+        try:
             metrics = filter_metrics(seq, result, cfg)
             metrics.cpu_time_s = cpu_slam
             metrics = replace(metrics, **accuracy_metrics(seq, result))
@@ -336,6 +356,10 @@ def run_pipeline(
                 artifacts.write_table(run / RunFile.RELATIONS, relations)
             write_recordings(run_dir, result, setup.run.record.first_scan)
             run.write_manifest(build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
+        except BaseException:
+            _finish_background(background, map_written, failing=True)
+            raise
+        _finish_background(background, map_written)
         map_written.result()  # its error, if any, is raised here
         if stopper.requested:
             raise KeyboardInterrupt

@@ -1,6 +1,7 @@
 """The per-particle odometry scale (`motion.scale_gain_per_m`, slam/odometry_scale.py)."""
 
 import numpy as np
+import pytest
 
 from slamlab.assemble import build_components
 from slamlab.geometry import se2_compose
@@ -43,7 +44,7 @@ def test_a_turn_on_the_spot_teaches_nothing_and_scales_stay_in_limits():
     s = np.array([1.0])
     p = np.zeros((1, 3))
     assert learn_scales(s, p, np.array([[0.3, 0.0, 0.5]]), np.array([0.0, 0.0, 0.5]), 1.0)[0] == 1.0
-    # a matcher that jumped 1 m back on a 0.2 m step: clipped, not taken
+    # a matcher that jumped 1 m back on a 0.2 m step: the scale is pinned at the lower limit
     got = learn_scales(s, p, np.array([[-1.0, 0.0, 0.0]]), np.array([0.2, 0.0, 0.0]), 10.0)
     assert got[0] == SCALE_LIMITS[0]
 
@@ -59,3 +60,29 @@ def test_the_filter_learns_the_rooms_odometry_scale():
     assert on.steps["odometry_scale"].iloc[0] == 1.0 and on.steps["odometry_scale"].iloc[-1] == scale
     off = run_slam(seq, build_components(_cfg("particles=20", "seed=1", "matcher=likelihood", "filter=rbpf")))
     assert "odometry_scale" not in off.extras and "odometry_scale" not in off.steps
+
+
+def test_each_particle_keeps_its_own_scale_through_resampling():
+    """The reported scale is the one the final best particle learnt along its own ancestry:
+    replaying `learn_scales` along its path (parents from the recorded history) from 1.0 must
+    give it. Were scales not resampled with their particles, the final particle would carry
+    another lineage's scale. The room run resamples at nearly every step (threshold 1.0)."""
+    from slamlab.geometry import se2_between
+    from slamlab.slam.engine import ancestral_path
+
+    seq = _room_sequence()
+    gain = 2.0
+    res = run_slam(seq, build_components(_cfg("particles=20", "seed=3", "matcher=likelihood", "filter=rbpf",
+                                               f"motion.scale_gain_per_m={gain}", "resampler.threshold=1.0",
+                                               "record.particles=true")))
+    h = res.particle_history
+    assert res.resample_count > 10
+    best = int(np.argmax(h.weights[-1]))
+    path = ancestral_path(h.poses, h.parents, best)
+    odom = np.array([s.odom for s in seq.scans])[res.extras["step_scans"]]
+    scale = np.ones(1)
+    for k in range(1, len(path)):
+        scale = learn_scales(scale, path[k - 1:k], path[k:k + 1], se2_between(odom[k - 1], odom[k]), gain)
+    assert scale[0] == pytest.approx(res.extras["odometry_scale"], abs=1e-12)
+    # the particles' scales differ enough that another lineage's would not pass the check
+    assert len(set(np.round(res.steps["odometry_scale"], 9))) > 5

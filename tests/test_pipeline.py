@@ -193,3 +193,28 @@ def test_verify_says_identical_then_finds_a_tampered_line(tmp_path, sim_cache):
     bad = subprocess.run([sys.executable, "-m", "slamlab.cli.verify", str(run)], capture_output=True, text=True, env=env)
     assert bad.returncode == 1
     assert "trajectory.tum line 51" in bad.stdout
+
+
+def test_ctrl_c_while_the_map_is_written_waits_for_the_writer(monkeypatch):
+    """A Ctrl-C during the wait for the map's thread is held until the thread has ended (then
+    raised), so the run folder's cleanup never races a file still being written."""
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    import slamlab.pipeline as P
+
+    real_wait, calls = P.wait, []
+
+    def interrupted_once(fs):
+        calls.append(1)
+        if len(calls) == 1:
+            raise KeyboardInterrupt
+        return real_wait(fs)
+
+    monkeypatch.setattr(P, "wait", interrupted_once)
+    pool, done = ThreadPoolExecutor(max_workers=1), threading.Event()
+    job = pool.submit(lambda: (time.sleep(0.2), done.set()))
+    with pytest.raises(KeyboardInterrupt):
+        P._finish_background(pool, job)
+    assert done.is_set() and len(calls) == 2

@@ -158,8 +158,8 @@ def run_slam(
                 if len(pts.xy):
                     poses, scores = maps.match(c.matcher, poses, pts, c.filter.step_scale(inc))
                     logw = c.weighting.update(logw, scores)
-                if scales is not None:
-                    scales = learn_scales(scales, before, poses, inc, c.motion.scale_gain_per_m)
+                    if scales is not None:  # only a match says where the particle really went
+                        scales = learn_scales(scales, before, poses, inc, c.motion.scale_gain_per_m)
             elif c.mode == "predict":
                 poses = c.motion.sample(poses, inc, rng)
             else:

@@ -15,8 +15,11 @@ with d the odometry's distance (m) over the step, a the particle's displacement 
 odometry's direction (m, from its pose before the step to its matched pose) and g the gain
 (1/m; 1/g is the distance over which s averages). Where the map says nothing along-track
 the match keeps the prediction, a = s d on average, and s stays; where it does (doors,
-corners, rooms) s learns the odometry's scale and the prediction stops drifting. The scale
-is part of a particle's state: resampling copies it with the pose.
+corners, rooms) s learns the odometry's scale and the prediction stops drifting. Where the
+map says nothing, each step's motion noise and match jitter still move s a little (a random
+walk of about g times the along-track noise per step), which the average over 1/g metres
+keeps small. A step without scan points (no match) teaches nothing. The scale is part of a
+particle's state: resampling copies it with the pose.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ import numpy as np
 
 from slamlab.geometry import FloatArray, se2_compose
 
-SCALE_LIMITS = (0.8, 1.25)  # a scale outside this is a matcher failure, not odometry
+SCALE_LIMITS = (0.8, 1.25)  # scales are pinned inside: odometry this far off is a broken log, not a scale
 
 
 def scaled_start(poses: FloatArray, scales: FloatArray, increment: FloatArray) -> FloatArray:

@@ -48,7 +48,8 @@ class SlamResult:
     - `odometry` (N, 3): the raw odometry poses, shifted to start at the first estimate.
     - `log_odds`: the final occupancy map in log-odds (float32 GridImage).
     - `steps`: one row per processed step with columns
-      step, scan_index, t, neff, resampled, best_weight, step_time_s.
+      step, scan_index, t, neff, resampled, best_weight, step_time_s (and odometry_scale,
+      the best particle's, when `motion.scale_gain_per_m` > 0 in mode slam).
     - `particles`, `resample_count`, `runtime_s` (wall time of the filter loop only).
     - `particle_history`: every particle's pose and weight per step, or None (not recorded).
     - `first_scan_xy` (M, 2): the first processed scan's points in the world frame (m), as

@@ -91,8 +91,9 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, rel, used,
                   r0, c0, rows, cols, l_occ, l_free, lmin, lmax, thresh, flips):
     """Ray-cast one scan into particle p's map: cells strictly before each end get `l_free`,
     end cells `l_occ` (all free updates first, as `raycast.raycast_update`), clamped to
-    [lmin, lmax]. A cell the update leaves as it is (at a clamp) is not written, so a shared
-    tile is copied only when one of its cells really changes. Cells whose `lo > thresh` state
+    [lmin, lmax]. In a shared tile a cell the update leaves as it is (at a clamp) is not
+    written, so the tile is copied only when one of its cells really changes (the particle's
+    own tiles are written without looking). Cells whose `lo > thresh` state
     changes are appended to `flips` (K, 3: row, col, 1 = became occupied / 0 = became free);
     returns their count. Cells are given in table coordinates and must lie inside the table."""
     nflip = 0
@@ -195,8 +196,9 @@ def _splat(table, p, pool_lo, pool_f, ref, free, rel, used, kernel, r, c, b0, b1
 @numba.njit(cache=True)
 def _recompute(table, p, pool_lo, pool_f, ref, free, rel, used, thresh, kernel, b0, b1, d0, d1):
     """Recompute particle p's field in rows [b0, b1), cols [d0, d1) from the occupied cells
-    within the kernel radius of that box. Only cells whose value changes are written, so
-    tiles are copied only where the field really moved (near the freed cells)."""
+    within the kernel radius of that box. A shared tile is copied (and written) only where a
+    value changes, so tiles are copied only where the field really moved (near the freed
+    cells); the particle's own tiles are written without looking."""
     H = table.shape[1] * TILE
     W = table.shape[2] * TILE
     R = kernel.shape[0] // 2
