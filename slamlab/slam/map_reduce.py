@@ -92,10 +92,11 @@ def tiled_known_bounds(tab, pool, tile, eps):
     return rows0.min(), rows1.max(), cols0.min(), cols1.max()
 
 
-def lowest_value(dtype: np.dtype) -> float | int:
-    """The least value of `dtype` (-inf for floats): where a running max starts."""
+def lowest_value(dtype: np.dtype) -> np.generic:
+    """The least value of `dtype` (-inf for floats), as a scalar of that type: where a
+    running max starts."""
     dtype = np.dtype(dtype)
-    return -np.inf if dtype.kind == "f" else int(np.iinfo(dtype).min)
+    return dtype.type(-np.inf if dtype.kind == "f" else np.iinfo(dtype).min)
 
 
 @numba.njit(cache=True, parallel=True)

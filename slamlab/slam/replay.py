@@ -84,7 +84,7 @@ def reduce_tiled_map(maps: TiledMaps, p: int, max_px: int = MAX_MAP_PX) -> tuple
     if r1 == 0:
         return _unknown(maps.res, origin)
     k = _block(r1 - r0, c1 - c0, max_px)
-    crop = tiled_block_max(tab, pool, TILE, r0, r1, c0, c1, k, pool.dtype.type(lowest_value(pool.dtype)))
+    crop = tiled_block_max(tab, pool, TILE, r0, r1, c0, c1, k, lowest_value(pool.dtype))
     return _free_ness(crop, k, r0 - crop_r, c0 - crop_c, maps.res, origin, maps.lo_unit)
 
 

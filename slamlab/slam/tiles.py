@@ -62,6 +62,13 @@ EMPTY = 0  # pool index of the shared all-zero tile
 
 
 @numba.njit(cache=True, inline="always")
+def _owned(ref, t):
+    """Whether pool tile t belongs to one particle alone (writable in place): never the
+    shared empty tile."""
+    return t != EMPTY and ref[t] == 1
+
+
+@numba.njit(cache=True, inline="always")
 def _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, rel, used):
     """Pool index of particle p's tile (tr, tc), made private to p (copied on write).
 
@@ -71,7 +78,7 @@ def _writable(table, p, tr, tc, pool_lo, pool_f, has_field, ref, free, rel, used
     tiles' counts drop in the caller after the batch (`TiledMaps._release`), so particles
     updated in parallel never write the same counter."""
     t = table[p, tr, tc]
-    if t != EMPTY and ref[t] == 1:
+    if _owned(ref, t):
         return t
     if used[0] >= free.shape[0]:
         raise RuntimeError("tile budget of count_fresh_tiles exceeded (a bug)")
@@ -117,7 +124,7 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, rel, used,
             tc = c >> TILE_SHIFT
             if tr != last_tr or tc != last_tc:
                 t = table[p, tr, tc]
-                own = t != EMPTY and ref[t] == 1
+                own = _owned(ref, t)
                 last_tr = tr
                 last_tc = tc
             ir = r & TILE_MASK
@@ -216,7 +223,7 @@ def _recompute(table, p, pool_lo, pool_f, ref, free, rel, used, thresh, kernel, 
             rb = min(b1, (tr + 1) << TILE_SHIFT)
             ca = max(d0, tc << TILE_SHIFT)
             cb = min(d1, (tc + 1) << TILE_SHIFT)
-            own = t != EMPTY and ref[t] == 1
+            own = _owned(ref, t)
             for rr in range(ra, rb):
                 for cc in range(ca, cb):
                     v = new[rr - b0, cc - d0]
