@@ -189,12 +189,15 @@ class LikelihoodMatcherConfig:
     move_to_best: bool = True
     voxel_m: float = 0.0  # match one point per voxel_m square of the scan (0 = every point): a surface
     # weighs by its size, not by the angle it covers (a person close by cannot outvote the walls)
+    max_gap_m: float = 0.0  # match only points with a scan neighbour within max_gap_m (0 = every point): isolated far
+    # hits on a wall seen at a grazing angle map as separate blobs that hold the match where it was (`isolated_filter`)
 
     def __post_init__(self) -> None:
         g = self.GROUP
         require_nonnegative(g, "prior_sigma_xy_m", self.prior_sigma_xy_m)
         require_nonnegative(g, "prior_sigma_yaw_rad", self.prior_sigma_yaw_rad)
         require_nonnegative(g, "voxel_m", self.voxel_m)
+        require_nonnegative(g, "max_gap_m", self.max_gap_m)
         require_positive(g, "sigma_m", self.sigma_m)
         require_positive(g, "radius_m", self.radius_m)
         _check_offset_grid(g, self.xy_half_width_m, self.xy_step_m, self.yaw_half_width_rad, self.yaw_step_rad)
