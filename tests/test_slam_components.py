@@ -409,3 +409,42 @@ def test_voxel_filter_keeps_one_point_per_square_in_scan_order():
     idx = [int(np.flatnonzero((xy == p).all(axis=1))[0]) for p in kept]
     assert idx == sorted(idx)
     assert voxel_filter(xy, 0.0) is xy
+
+
+def test_isolated_filter_keeps_points_with_a_close_scan_neighbour_in_order():
+    from slamlab.slam.matcher import isolated_filter
+
+    near = np.stack([np.full(20, 1.0), np.linspace(0.0, 0.95, 20)], axis=1)  # 5 cm apart
+    far = np.array([[10.0, 1.4], [14.0, 1.4], [20.0, 1.4]])  # metres apart: each one alone
+    pair = np.array([[25.0, -3.0], [25.0, -2.6]])  # 0.4 m apart: each has a neighbour
+    xy = np.vstack([near, far, pair])
+    kept = isolated_filter(xy, 0.6)
+    assert np.array_equal(kept, np.vstack([near, pair]))
+    assert isolated_filter(xy, 0.0) is xy  # off: every point
+    assert len(isolated_filter(far[:1], 0.6)) == 1  # a single point has nothing to compare with
+
+
+def _corridor_scan() -> np.ndarray:
+    """A 180-beam, 1-degree scan (-90..+89 deg, 30 m range) from the centre line of a bare
+    corridor 2.8 m wide, facing along it (body frame, m): far along each wall the hits lie
+    metres apart."""
+    a = np.radians(np.arange(180) - 90.0)
+    s = np.sin(a)
+    hit = np.abs(s) > 1e-9
+    t = np.where(hit, 1.4 / np.where(hit, np.abs(s), 1.0), np.inf)
+    keep = t <= 30.0
+    return np.stack([t[keep] * np.cos(a[keep]), t[keep] * np.sin(a[keep])], axis=1)
+
+
+def test_isolated_far_hits_no_longer_hold_the_match_where_the_robot_was():
+    """Down a bare corridor the only along-track 'evidence' is the comb of isolated far hits
+    mapped from the last pose; matched against it the next scan is pulled back to where the
+    robot was. Without them the match keeps the odometry's 0.2 m."""
+    g = OccupancyGrid(MapSettings(resolution_m=0.05, initial_size_m=8.0), field_sigma_m=0.1, field_radius_m=0.3)
+    g.insert(np.zeros(2), _corridor_scan())  # seen from x = 0
+    scan = ScanPoints(xy=_corridor_scan(), origin=np.zeros(2))  # seen from x = 0.2 (the prediction)
+    pred = np.array([[0.2, 0.0, 0.0]])
+    held, _ = LikelihoodFieldMatcher(max_gap_m=0.0).match(g, pred, scan)
+    free, _ = LikelihoodFieldMatcher(max_gap_m=0.6).match(g, pred, scan)
+    assert held[0, 0] < 0.1  # the comb pulls the match back towards x = 0
+    assert abs(free[0, 0] - 0.2) < 0.05
