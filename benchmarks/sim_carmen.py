@@ -1,0 +1,270 @@
+"""A simulated CARMEN log of a wheeled robot with a horizontal 2D lidar in the `loops`
+building, and the lidar2d preset's relation errors on it (an FR079-like robustness probe).
+
+Why: `+experiment=lidar2d` was chosen on Intel and ACES; Freiburg's FR079 (long corridors,
+large loops) is the kind of log where a particle filter fails to close a loop, and we do not
+have it. This writes a log of that kind with a known ground truth: the simulated `loops`
+building (slamlab.datasets.sim.world, layout "loops", `--scale` 2 = 80 x 60 m with 64-72 m
+corridors), driven once along its figure-eight route (416 m at scale 2, two loop closures)
+by a Pioneer-like robot: 0.5 m/s, turning on the spot at 0.5 rad/s, a SICK-like lidar at
+z = 0.35 m (10 Hz, 180 beams -90..+89 deg, 30 m range, 81.9 = no return, sigma 1 cm, 1 cm
+steps, mounted at the robot centre as in Intel), and drifting wheel odometry (+2 % distance,
+1 deg/m yaw bias plus a slowly wandering yaw drift and random walk; see `ODOM`). Beside the
+log go Kuemmerle-style relations from the ground truth: one every 1 s to a scan 1-2 s later,
+then, after a `#` comment line, up to `--loop-relations` between places revisited more than
+60 s apart (true positions within 1.5 m), which measure loop closure; and the true poses of
+the scans (`<stem>_truth.tum`).
+
+    .venv/bin/python benchmarks/sim_carmen.py --scale 2.0 --world-seed 0 [--out /tmp/simcarmen]
+    .venv/bin/python benchmarks/sim_carmen.py --scale 2.0 --world-seed 0 --run --filter-seeds 0,1,2 [OVERRIDE ...]
+
+`--run` runs `slamlab +experiment=lidar2d` on the log once per filter seed (two at a time,
+NUMBA_NUM_THREADS=1, each in a new folder under OUT/runs/) and prints a table: relation error
+(smoothed, causal, raw odometry), the loop relations alone, the largest distance of the
+smoothed trajectory from the truth and where, runtime. The table is also written to
+OUT/sim_carmen_<stem>.csv. Files are written atomically; everything is seeded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.spatial import cKDTree
+
+from slamlab.datasets.relations import load_relations
+from slamlab.datasets.sim.raycast import cast_scans
+from slamlab.datasets.sim.sensors import simulate_odometry
+from slamlab.datasets.sim.trajectory import FINE_DT_S, Motion, route_duration_s, waypoint_commands
+from slamlab.datasets.sim.world import build_world
+from slamlab.eval.relations import find_times, relation_errors
+from slamlab.frames import Relations
+from slamlab.geometry import se2_between, wrap_angle
+from slamlab.io.atomic import write_text
+from slamlab.io.rundir import RunFile
+from slamlab.io.tum import read_tum, write_tum
+
+SPEED_MPS = 0.5
+TURN_RPS = 0.5
+STAND_S = 2.0  # standing still before and after the route (s)
+T0 = 1_100_000_000.0  # ipc_timestamp of the first record (s, epoch)
+LIDAR_HZ = 10.0
+ODOM_HZ = 20.0
+LIDAR_Z_M = 0.35  # lidar plane above the floor (Pioneer + SICK)
+N_BEAMS = 180
+BEAM_ANGLES = np.deg2rad(np.arange(N_BEAMS) - 90.0)  # -90..+89 deg, 1 deg steps (FLASER n = 180)
+LIDAR_MAX_M = 30.0
+NO_RETURN_M = 81.9  # what the SICK reports for nothing within range
+RANGE_SIGMA_M = 0.01
+# Odometry: simulate_odometry's noise model, set for a wheeled robot (keyword arguments).
+ODOM = dict(scale_bias=0.02, yaw_bias_deg_per_m=1.0, yaw_drift_deg_per_min=3.0,
+            noise_m_per_sqrt_s=0.005, noise_deg_per_sqrt_s=0.1)  # fmt: skip
+LOOP_MIN_DT_S = 60.0  # a loop relation joins scans more than this apart in time ...
+LOOP_MAX_DIST_M = 1.5  # ... whose true positions are within this
+
+
+@dataclass(frozen=True)
+class SimLog:
+    """Scans at times `t` (N,) s (epoch), true poses `truth` (N, 3) and odometry `odom` (N, 3)
+    (m, m, rad unwrapped), ranges (N, 180) m as written; the ODOM records `odom_t` (M,) s,
+    `odom_pose` (M, 3), `odom_vel` (M, 2) (m/s, rad/s)."""
+
+    t: np.ndarray
+    truth: np.ndarray
+    odom: np.ndarray
+    ranges: np.ndarray
+    odom_t: np.ndarray
+    odom_pose: np.ndarray
+    odom_vel: np.ndarray
+
+
+def true_motion(route: np.ndarray) -> Motion:
+    """The wheeled robot's true motion on the 1 ms grid: stand STAND_S, drive the route once
+    (straight at SPEED_MPS, turning on the spot at TURN_RPS), stand STAND_S."""
+    drive_s = route_duration_s(route, SPEED_MPS, TURN_RPS, STAND_S)
+    v, w = waypoint_commands(drive_s, route, SPEED_MPS, TURN_RPS, STAND_S)
+    v, w = np.pad(v, (0, int(round(STAND_S / FINE_DT_S)))), np.pad(w, (0, int(round(STAND_S / FINE_DT_S))))
+    theta = np.concatenate([[0.0], np.cumsum(w[:-1]) * FINE_DT_S])
+    th_mid = theta + 0.5 * w * FINE_DT_S  # midpoint heading: as simulate_motion integrates
+    x = np.concatenate([[0.0], np.cumsum(v[:-1] * np.cos(th_mid[:-1])) * FINE_DT_S])
+    y = np.concatenate([[0.0], np.cumsum(v[:-1] * np.sin(th_mid[:-1])) * FINE_DT_S])
+    zero = np.zeros_like(v)
+    return Motion(t=np.arange(v.size) * FINE_DT_S, pose=np.stack([x, y, theta], axis=1), v=v, w=w,
+                  roll=zero, pitch=zero, neck_yaw=zero, head_pitch=zero)  # fmt: skip
+
+
+def _at(motion_t: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Columns of `values` (on the fine grid) interpolated at times t (s, relative)."""
+    return np.stack([np.interp(t, motion_t, values[:, k]) for k in range(values.shape[1])], axis=1)
+
+
+def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float) -> SimLog:
+    """The whole log in memory (see the module doc)."""
+    world = build_world(world_seed, n_clutter=40, texture_res_m=0.05, scale=scale, layout="loops")
+    motion = true_motion(world.route)
+    odom_fine = simulate_odometry(motion, seed, **{**ODOM, "yaw_bias_deg_per_m": yaw_bias_deg_per_m})
+    end = motion.t[-1]
+    ts = np.arange(0.0, end, 1.0 / LIDAR_HZ)
+    truth = _at(motion.t, motion.pose, ts)
+    c, s = np.cos(truth[:, 2]), np.sin(truth[:, 2])
+    T = np.zeros((ts.size, 4, 4))
+    T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -s, s, c
+    T[:, 2, 2] = T[:, 3, 3] = 1.0
+    T[:, 0, 3], T[:, 1, 3], T[:, 2, 3] = truth[:, 0], truth[:, 1], LIDAR_Z_M
+    r, ids = cast_scans(T, BEAM_ANGLES, world.boxes, np.zeros((ts.size, 0, 4)), LIDAR_MAX_M)
+    rng = np.random.default_rng([seed, 505])
+    r = np.round(r + rng.normal(0.0, RANGE_SIGMA_M, r.shape), 2)  # noise, 1 cm steps
+    r[(ids == -1) | (r > LIDAR_MAX_M) | (r <= 0.0)] = NO_RETURN_M
+    to = np.arange(0.0, end, 1.0 / ODOM_HZ) + 0.5 / LIDAR_HZ / 2  # ODOM records between scans
+    to = to[to < end]
+    odom_pose = _at(motion.t, odom_fine, to)
+    step = np.diff(odom_pose, axis=0, prepend=odom_pose[:1])
+    vel = np.stack([np.hypot(step[:, 0], step[:, 1]), step[:, 2]], axis=1) * ODOM_HZ
+    return SimLog(t=T0 + ts, truth=truth, odom=_at(motion.t, odom_fine, ts), ranges=r,
+                  odom_t=T0 + to, odom_pose=odom_pose, odom_vel=vel)  # fmt: skip
+
+
+def clf_text(log: SimLog) -> str:
+    """The log as CARMEN text: PARAMs, then ODOM and FLASER records in time order. FLASER's
+    laser pose and robot pose are both the odometry (a mount at the robot centre, as Intel)."""
+    head = ["# simulated by benchmarks/sim_carmen.py (slamlab): wheeled robot, loops building",
+            "# FLASER num_readings [range_readings] x y theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname logger_timestamp",
+            "# ODOM x y theta tv rv accel ipc_timestamp ipc_hostname logger_timestamp",
+            "PARAM robot_frontlaser_offset 0.0 nohost 0", f"PARAM robot_front_laser_max {NO_RETURN_M} nohost 0"]  # fmt: skip
+    records: list[tuple[float, str]] = []
+    for t, p, vel in zip(log.odom_t, log.odom_pose, log.odom_vel):
+        records.append((t, f"ODOM {p[0]:.6f} {p[1]:.6f} {wrap_angle(p[2]):.6f} {vel[0]:.6f} {vel[1]:.6f} 0.000000 "
+                           f"{t:.6f} nohost {t - T0:.6f}"))  # fmt: skip
+    for t, p, r in zip(log.t, log.odom, log.ranges):
+        pose = f"{p[0]:.6f} {p[1]:.6f} {wrap_angle(p[2]):.6f}"
+        records.append((t, f"FLASER {N_BEAMS} {' '.join(f'{v:.2f}' for v in r)} {pose} {pose} {t:.6f} nohost {t - T0:.6f}"))
+    records.sort(key=lambda rec: rec[0])
+    return "\n".join(head + [line for _, line in records]) + "\n"
+
+
+def make_relations(t: np.ndarray, truth: np.ndarray, seed: int, n_loop: int) -> tuple[np.ndarray, np.ndarray]:
+    """(local (L, 2), loop (K, 2)) scan index pairs: one local relation per second to a scan
+    1-2 s later; up to `n_loop` pairs more than LOOP_MIN_DT_S apart whose true positions are
+    within LOOP_MAX_DIST_M, evenly spread over all such pairs ordered by time."""
+    rng = np.random.default_rng([seed, 606])
+    per_s = int(round(LIDAR_HZ))
+    i = np.arange(0, t.size - 2 * per_s, per_s)
+    local = np.stack([i, i + rng.integers(per_s, 2 * per_s + 1, i.size)], axis=1)
+    pairs = np.array(sorted(cKDTree(truth[:, :2]).query_pairs(LOOP_MAX_DIST_M)), dtype=np.int64).reshape(-1, 2)
+    pairs = pairs[t[pairs[:, 1]] - t[pairs[:, 0]] > LOOP_MIN_DT_S]
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    pick = np.unique(np.linspace(0, len(pairs) - 1, min(n_loop, len(pairs))).round().astype(int)) if len(pairs) else []
+    return local, pairs[pick]
+
+
+def relations_text(t: np.ndarray, truth: np.ndarray, local: np.ndarray, loop: np.ndarray) -> str:
+    """`t1 t2 x y z roll pitch yaw`: the true pose of t2 in the frame of t1 (as published)."""
+
+    def rows(idx: np.ndarray) -> list[str]:
+        rel = se2_between(truth[idx[:, 0]], truth[idx[:, 1]])
+        return [f"{t[a]:.6f} {t[b]:.6f} {x:.6f} {y:.6f} 0.000000 0.000000 0.000000 {wrap_angle(th):.6f}"
+                for (a, b), (x, y, th) in zip(idx, rel)]  # fmt: skip
+
+    loop_head = f"# loop relations: scans more than {LOOP_MIN_DT_S:g} s apart, true positions within {LOOP_MAX_DIST_M:g} m"
+    return "\n".join(rows(local) + [loop_head] + rows(loop)) + "\n"
+
+
+def write_log(out: Path, scale: float, world_seed: int, seed: int, n_loop: int, yaw_bias_deg_per_m: float) -> Path:
+    """Simulate and write `loops{scale}x_w{world_seed}.clf`, `.relations` and `_truth.tum`
+    into `out`; print a summary; return the log's path."""
+    log = simulate(scale, world_seed, seed, yaw_bias_deg_per_m)
+    stem = f"loops{scale:g}x_w{world_seed}"
+    out.mkdir(parents=True, exist_ok=True)
+    local, loop = make_relations(log.t, log.truth, seed, n_loop)
+    write_text(out / f"{stem}.clf", clf_text(log))
+    write_text(out / f"{stem}.relations", relations_text(log.t, log.truth, local, loop))
+    write_tum(out / f"{stem}_truth.tum", log.t, log.truth)
+    route_m = float(np.hypot(*np.diff(log.truth[:, :2], axis=0).T).sum())
+    drift = np.hypot(*(log.odom[:, :2] - log.truth[:, :2]).T)
+    print(f"{out / stem}.clf: {log.t.size} scans, {log.t[-1] - log.t[0]:.0f} s, route {route_m:.0f} m; "
+          f"odometry drift at the end {drift[-1]:.1f} m (max {drift.max():.1f} m), heading "
+          f"{np.degrees(wrap_angle(log.odom[-1, 2] - log.truth[-1, 2])):+.0f} deg; "
+          f"relations {len(local)} local + {len(loop)} loop")  # fmt: skip
+    return out / f"{stem}.clf"
+
+
+def _subset(rel: Relations, keep: np.ndarray) -> Relations:
+    return Relations(rel.t1[keep], rel.t2[keep], rel.rel[keep], rel.path)
+
+
+def run_one(clf: Path, seed: int, runs: Path, overrides: list[str]) -> dict:
+    """One `slamlab +experiment=lidar2d` run in a new folder; its row of the table."""
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    run_dir = runs / f"{clf.stem}_f{seed}_{stamp}"
+    k = 1
+    while run_dir.exists():
+        run_dir, k = runs / f"{clf.stem}_f{seed}_{stamp}_{k}", k + 1
+    cmd = [sys.executable, "-m", "slamlab.cli.app", "+experiment=lidar2d", f"dataset.path={clf}", "report=false",
+           "progress=off", f"seed={seed}", *overrides, f"hydra.run.dir={run_dir}"]  # fmt: skip
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=runs, env={**os.environ, "NUMBA_NUM_THREADS": "1"}, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    row: dict = {"filter_seed": seed, "run_dir": str(run_dir), "wall_s": wall}
+    metrics_path = run_dir / RunFile.METRICS
+    if proc.returncode != 0 or not metrics_path.is_file():
+        row["error"] = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no metrics.json"]
+        return row
+    m = json.loads(metrics_path.read_text())
+    rel = m.get("relations", {})
+    row.update(rel_mean_m=rel.get("trans_abs_mean_m"), causal_mean_m=rel.get("causal", {}).get("trans_abs_mean_m"),
+               odom_mean_m=rel.get("odometry", {}).get("trans_abs_mean_m"), rot_mean_deg=rel.get("rot_abs_mean_deg"),
+               runtime_s=m.get("runtime_s"))  # fmt: skip
+    # Loop relations alone, and the largest distance from the truth (same frame: both start at the origin).
+    relations = load_relations(clf.with_suffix(".relations"))
+    truth_t, truth = read_tum(clf.with_name(f"{clf.stem}_truth.tum"))
+    for name, kind in (("loop", RunFile.TRAJECTORY), ("loop_causal", RunFile.TRAJECTORY_CAUSAL), ("loop_odom", RunFile.ODOMETRY)):
+        tt, poses = read_tum(run_dir / kind)
+        loop = np.abs(relations.t2 - relations.t1) > LOOP_MIN_DT_S
+        keep = loop & find_times(tt, relations.t1, 1e-4)[1] & find_times(tt, relations.t2, 1e-4)[1]
+        row[f"{name}_mean_m"] = relation_errors(tt, poses, _subset(relations, keep), 1e-4)["trans_abs_mean_m"]
+        if kind == RunFile.TRAJECTORY:
+            idx, ok = find_times(truth_t, tt, 1e-4)
+            err = np.hypot(*(poses[ok, :2] - truth[idx[ok], :2]).T)
+            j = int(np.argmax(err))
+            row.update(max_err_m=float(err[j]), max_err_at=f"t={tt[ok][j] - T0:.0f}s ({truth[idx[ok][j], 0]:.0f},{truth[idx[ok][j], 1]:.0f})")
+    return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scale", type=float, default=2.0, help="building size relative to 40 x 30 m")
+    ap.add_argument("--world-seed", type=int, default=0, help="floor plan and clutter")
+    ap.add_argument("--seed", type=int, default=0, help="odometry, range noise and relation sampling")
+    ap.add_argument("--out", type=Path, default=Path("/tmp/simcarmen"))
+    ap.add_argument("--loop-relations", type=int, default=300, help="how many loop relations at most")
+    ap.add_argument("--yaw-bias-deg-per-m", type=float, default=ODOM["yaw_bias_deg_per_m"], help="odometry yaw bias")
+    ap.add_argument("--run", action="store_true", help="run +experiment=lidar2d on the log")
+    ap.add_argument("--filter-seeds", default="0,1,2", help="comma-separated filter seeds for --run")
+    ap.add_argument("overrides", nargs="*", help="Hydra overrides added to every run (e.g. matcher.max_gap_m=0)")
+    args = ap.parse_args(argv)
+
+    clf = write_log(args.out, args.scale, args.world_seed, args.seed, args.loop_relations, args.yaw_bias_deg_per_m)
+    if not args.run:
+        return 0
+    seeds = [int(s) for s in args.filter_seeds.split(",") if s.strip()]
+    (args.out / "runs").mkdir(parents=True, exist_ok=True)
+    with ThreadPoolExecutor(max_workers=2) as pool:  # two slamlab processes at most
+        rows = list(pool.map(lambda s: run_one(clf, s, args.out / "runs", args.overrides), seeds))
+    table = pd.DataFrame([{"world_seed": args.world_seed, "scale": args.scale, "overrides": " ".join(args.overrides), **r} for r in rows])
+    table.to_csv(args.out / f"sim_carmen_{clf.stem}.csv", index=False)
+    shown = table.drop(columns=["run_dir"])
+    print(shown.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    return 0 if "error" not in table else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
