@@ -161,10 +161,12 @@ class GridMatcherConfig:
     yaw_step_rad: float = 0.01
     move_to_best: bool = True  # move each particle to its best offset
     beam_step: int = 4  # use every k-th scan point (THOR: 1081 beams; 4 keeps it faster than real time)
+    max_gap_m: float = 0.0  # match only points with a scan neighbour within max_gap_m (0 = every point; see the likelihood matcher)
 
     def __post_init__(self) -> None:
         _check_offset_grid(self.GROUP, self.xy_half_width_m, self.xy_step_m, self.yaw_half_width_rad, self.yaw_step_rad)
         require_int(self.GROUP, "beam_step", self.beam_step, 1)
+        require_nonnegative(self.GROUP, "max_gap_m", self.max_gap_m)
 
 
 @dataclass

@@ -314,7 +314,7 @@ class GridMatcher(Matcher):
 
     Offsets: x and y from -xy_half_width_m to +xy_half_width_m in xy_step_m (0.2 / 0.05 =
     9 x 9), yaw likewise (yaw_half_width_rad 0 = no yaw search). `beam_step` uses every
-    k-th scan point.
+    k-th scan point; `max_gap_m` only points with a scan neighbour that close (`isolated_filter`).
     """
 
     # defaults and checks: `slamlab.config.slam.GridMatcherConfig` (built from it at the edge)
@@ -326,13 +326,15 @@ class GridMatcher(Matcher):
         yaw_step_rad: float = _Grid.yaw_step_rad,
         move_to_best: bool = _Grid.move_to_best,
         beam_step: int = _Grid.beam_step,
+        max_gap_m: float = _Grid.max_gap_m,
     ) -> None:
         self.beam_step = int(beam_step)
+        self.max_gap_m = float(max_gap_m)
         self.offsets = offset_grid(xy_half_width_m, xy_step_m, yaw_half_width_rad, yaw_step_rad)
         self.move_to_best = bool(move_to_best)
 
     def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
-        pts = np.ascontiguousarray(scan.xy[:: self.beam_step])
+        pts = np.ascontiguousarray(isolated_filter(scan.xy, self.max_gap_m)[:: self.beam_step])
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
         args = (grid.log_odds, np.float32(grid.s.occupied_threshold), grid.origin[0], grid.origin[1], 1.0 / grid.res,
@@ -346,7 +348,7 @@ class GridMatcher(Matcher):
         return self._finish(poses, best, scores)
 
     def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
-        pts = np.ascontiguousarray(scan.xy[:: self.beam_step])
+        pts = np.ascontiguousarray(isolated_filter(scan.xy, self.max_gap_m)[:: self.beam_step])
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
         tiled_grid_search(
