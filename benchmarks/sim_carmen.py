@@ -22,7 +22,7 @@ the scans (`<stem>_truth.tum`).
 NUMBA_NUM_THREADS=1, each in a new folder under OUT/runs/) and prints a table: relation error
 (smoothed, causal, raw odometry), the loop relations alone, the largest distance of the
 smoothed trajectory from the truth and where, runtime. The table is also written to
-OUT/sim_carmen_<stem>.csv. Files are written atomically; everything is seeded.
+OUT/sim_carmen_<stem>_<time>.csv. Files are written atomically; everything is seeded.
 """
 
 from __future__ import annotations
@@ -204,10 +204,14 @@ def _subset(rel: Relations, keep: np.ndarray) -> Relations:
 def run_one(clf: Path, seed: int, runs: Path, overrides: list[str]) -> dict:
     """One `slamlab +experiment=lidar2d` run in a new folder; its row of the table."""
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    run_dir = runs / f"{clf.stem}_f{seed}_{stamp}"
-    k = 1
-    while run_dir.exists():
-        run_dir, k = runs / f"{clf.stem}_f{seed}_{stamp}_{k}", k + 1
+    k = 0
+    while True:  # claim a new folder: never another run's, even for a repeated seed
+        run_dir = runs / (f"{clf.stem}_f{seed}_{stamp}" + (f"_{k}" if k else ""))
+        try:
+            run_dir.mkdir(parents=True)
+            break
+        except FileExistsError:
+            k += 1
     cmd = [sys.executable, "-m", "slamlab.cli.app", "+experiment=lidar2d", f"dataset.path={clf}", "report=false",
            "progress=off", f"seed={seed}", *overrides, f"hydra.run.dir={run_dir}"]  # fmt: skip
     t0 = time.perf_counter()
@@ -260,7 +264,8 @@ def main(argv: list[str] | None = None) -> int:
     with ThreadPoolExecutor(max_workers=2) as pool:  # two slamlab processes at most
         rows = list(pool.map(lambda s: run_one(clf, s, args.out / "runs", args.overrides), seeds))
     table = pd.DataFrame([{"world_seed": args.world_seed, "scale": args.scale, "overrides": " ".join(args.overrides), **r} for r in rows])
-    table.to_csv(args.out / f"sim_carmen_{clf.stem}.csv", index=False)
+    csv = args.out / f"sim_carmen_{clf.stem}_{time.strftime('%Y%m%d-%H%M%S')}.csv"  # one per invocation
+    write_text(csv, table.to_csv(index=False))
     shown = table.drop(columns=["run_dir"])
     print(shown.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     return 0 if "error" not in table else 1

@@ -32,7 +32,7 @@ def test_the_simulated_log_reads_back_as_written_and_its_relations_are_the_truth
     k = len(seq) // 2  # a scan's readings: 1 cm steps, "no return" beyond 30 m
     f = seq.scans[k]
     want = log.ranges[k]
-    hit = want < sim_carmen.LIDAR_MAX_M
+    hit = want < sim_carmen.NO_RETURN_M
     assert np.allclose(f.ranges[hit & f.valid], want[hit & f.valid], atol=1e-4) and (f.valid == hit).all()
     drift = np.hypot(*(log.odom[-1, :2] - log.truth[-1, :2]))
     assert drift > 3.0  # the odometry drifts by metres

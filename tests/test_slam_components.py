@@ -421,7 +421,8 @@ def test_isolated_filter_keeps_points_with_a_close_scan_neighbour_in_order():
     kept = isolated_filter(xy, 0.6)
     assert np.array_equal(kept, np.vstack([near, pair]))
     assert isolated_filter(xy, 0.0) is xy  # off: every point
-    assert len(isolated_filter(far[:1], 0.6)) == 1  # a single point has nothing to compare with
+    assert isolated_filter(far, 0.6) is far  # no point has a neighbour: matched as it is, never empty
+    assert len(isolated_filter(far[:1], 0.6)) == 1
 
 
 def _corridor_scan() -> np.ndarray:
@@ -448,3 +449,26 @@ def test_isolated_far_hits_no_longer_hold_the_match_where_the_robot_was():
     free, _ = LikelihoodFieldMatcher(max_gap_m=0.6).match(g, pred, scan)
     assert held[0, 0] < 0.1  # the comb pulls the match back towards x = 0
     assert abs(free[0, 0] - 0.2) < 0.05
+    # the RBPF's per-particle path (tiled maps) filters the same points
+    from slamlab.slam.tiles import TiledMaps
+
+    maps = TiledMaps(MapSettings(resolution_m=0.05), 1, (0.0, 0.0), field_sigma_m=0.1, field_radius_m=0.3)
+    maps.insert_scan(np.zeros((1, 3)), _corridor_scan(), np.zeros(2))
+    held_t, _ = LikelihoodFieldMatcher(max_gap_m=0.0).match_each(maps, pred, scan)
+    free_t, _ = LikelihoodFieldMatcher(max_gap_m=0.6).match_each(maps, pred, scan)
+    assert held_t[0, 0] < 0.1 and abs(free_t[0, 0] - 0.2) < 0.05
+
+
+def test_the_grid_matcher_matches_only_the_points_with_a_close_neighbour():
+    from slamlab.slam.matcher import isolated_filter
+
+    g = OccupancyGrid(MapSettings(resolution_m=0.05, initial_size_m=8.0))
+    for _ in range(3):
+        g.insert(np.zeros(2), _corridor_scan())
+    xy = _corridor_scan()
+    pose = np.zeros((1, 3))
+    m = GridMatcher(xy_half_width_m=0.0, beam_step=1, max_gap_m=0.6)
+    _, with_gap = m.match(g, pose, ScanPoints(xy=xy, origin=np.zeros(2)))
+    _, kept_only = GridMatcher(xy_half_width_m=0.0, beam_step=1).match(g, pose, ScanPoints(xy=isolated_filter(xy, 0.6), origin=np.zeros(2)))
+    _, every = GridMatcher(xy_half_width_m=0.0, beam_step=1).match(g, pose, ScanPoints(xy=xy, origin=np.zeros(2)))
+    assert with_gap[0] == kept_only[0] < every[0]  # the lone far hits no longer count
