@@ -44,7 +44,9 @@ from scipy.spatial import cKDTree
 from slamlab.datasets.relations import load_relations
 from slamlab.datasets.sim.raycast import cast_scans
 from slamlab.datasets.sim.sensors import simulate_odometry
-from slamlab.datasets.sim.trajectory import FINE_DT_S, Motion, route_duration_s, waypoint_commands
+from slamlab.datasets.sim.trajectory import (
+    FINE_DT_S, Motion, integrate_commands, interp_columns, route_duration_s, waypoint_commands,
+)
 from slamlab.datasets.sim.world import build_world
 from slamlab.eval.relations import find_times, relation_errors
 from slamlab.frames import Relations
@@ -93,18 +95,9 @@ def true_motion(route: np.ndarray) -> Motion:
     drive_s = route_duration_s(route, SPEED_MPS, TURN_RPS, STAND_S)
     v, w = waypoint_commands(drive_s, route, SPEED_MPS, TURN_RPS, STAND_S)
     v, w = np.pad(v, (0, int(round(STAND_S / FINE_DT_S)))), np.pad(w, (0, int(round(STAND_S / FINE_DT_S))))
-    theta = np.concatenate([[0.0], np.cumsum(w[:-1]) * FINE_DT_S])
-    th_mid = theta + 0.5 * w * FINE_DT_S  # midpoint heading: as simulate_motion integrates
-    x = np.concatenate([[0.0], np.cumsum(v[:-1] * np.cos(th_mid[:-1])) * FINE_DT_S])
-    y = np.concatenate([[0.0], np.cumsum(v[:-1] * np.sin(th_mid[:-1])) * FINE_DT_S])
     zero = np.zeros_like(v)
-    return Motion(t=np.arange(v.size) * FINE_DT_S, pose=np.stack([x, y, theta], axis=1), v=v, w=w,
+    return Motion(t=np.arange(v.size) * FINE_DT_S, pose=integrate_commands(v, w), v=v, w=w,
                   roll=zero, pitch=zero, neck_yaw=zero, head_pitch=zero)  # fmt: skip
-
-
-def _at(motion_t: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Columns of `values` (on the fine grid) interpolated at times t (s, relative)."""
-    return np.stack([np.interp(t, motion_t, values[:, k]) for k in range(values.shape[1])], axis=1)
 
 
 def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float) -> SimLog:
@@ -114,7 +107,7 @@ def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float
     odom_fine = simulate_odometry(motion, seed, **{**ODOM, "yaw_bias_deg_per_m": yaw_bias_deg_per_m})
     end = motion.t[-1]
     ts = np.arange(0.0, end, 1.0 / LIDAR_HZ)
-    truth = _at(motion.t, motion.pose, ts)
+    truth = interp_columns(ts, motion.t, motion.pose)
     c, s = np.cos(truth[:, 2]), np.sin(truth[:, 2])
     T = np.zeros((ts.size, 4, 4))
     T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -s, s, c
@@ -126,10 +119,10 @@ def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float
     r[(ids == -1) | (r > LIDAR_MAX_M) | (r <= 0.0)] = NO_RETURN_M
     to = np.arange(0.0, end, 1.0 / ODOM_HZ) + 0.5 / LIDAR_HZ / 2  # ODOM records between scans
     to = to[to < end]
-    odom_pose = _at(motion.t, odom_fine, to)
+    odom_pose = interp_columns(to, motion.t, odom_fine)
     step = np.diff(odom_pose, axis=0, prepend=odom_pose[:1])
     vel = np.stack([np.hypot(step[:, 0], step[:, 1]), step[:, 2]], axis=1) * ODOM_HZ
-    return SimLog(t=T0 + ts, truth=truth, odom=_at(motion.t, odom_fine, ts), ranges=r,
+    return SimLog(t=T0 + ts, truth=truth, odom=interp_columns(ts, motion.t, odom_fine), ranges=r,
                   odom_t=T0 + to, odom_pose=odom_pose, odom_vel=vel)  # fmt: skip
 
 

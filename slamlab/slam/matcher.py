@@ -333,8 +333,12 @@ class GridMatcher(Matcher):
         self.offsets = offset_grid(xy_half_width_m, xy_step_m, yaw_half_width_rad, yaw_step_rad)
         self.move_to_best = bool(move_to_best)
 
+    def _points(self, scan: ScanPoints) -> FloatArray:
+        """The scan points the offsets are scored with (after `isolated_filter`)."""
+        return np.ascontiguousarray(isolated_filter(scan.xy, self.max_gap_m)[:: self.beam_step])
+
     def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
-        pts = np.ascontiguousarray(isolated_filter(scan.xy, self.max_gap_m)[:: self.beam_step])
+        pts = self._points(scan)
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
         args = (grid.log_odds, np.float32(grid.s.occupied_threshold), grid.origin[0], grid.origin[1], 1.0 / grid.res,
@@ -348,7 +352,7 @@ class GridMatcher(Matcher):
         return self._finish(poses, best, scores)
 
     def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
-        pts = np.ascontiguousarray(isolated_filter(scan.xy, self.max_gap_m)[:: self.beam_step])
+        pts = self._points(scan)
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
         tiled_grid_search(

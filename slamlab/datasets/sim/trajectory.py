@@ -41,10 +41,27 @@ class Motion:
     def sample(self, t: FloatArray) -> dict[str, FloatArray]:
         """Linear interpolation of every field at times `t` (s, relative); theta unwrapped."""
         t = np.asarray(t, dtype=np.float64)
-        out = {"pose": np.stack([np.interp(t, self.t, self.pose[:, k]) for k in range(3)], axis=1)}
+        out = {"pose": interp_columns(t, self.t, self.pose)}
         for name in ("v", "w", "roll", "pitch", "neck_yaw", "head_pitch"):
             out[name] = np.interp(t, self.t, getattr(self, name))
         return out
+
+
+def interp_columns(t: FloatArray, grid_t: FloatArray, values: FloatArray) -> FloatArray:
+    """Each column of `values` (N, K), given at times `grid_t` (N,), linearly interpolated at
+    times `t` (M,): (M, K). Angles must be unwrapped."""
+    return np.stack([np.interp(t, grid_t, values[:, k]) for k in range(values.shape[1])], axis=1)
+
+
+def integrate_commands(v: FloatArray, w: FloatArray) -> FloatArray:
+    """Poses (N, 3: x m, y m, theta rad unwrapped) on the fine grid from forward speed `v`
+    (m/s) and yaw rate `w` (rad/s), starting at the origin facing +x."""
+    theta = np.concatenate([[0.0], np.cumsum(w[:-1]) * FINE_DT_S])
+    # midpoint heading per step: second-order accurate integration of the unicycle
+    th_mid = theta + 0.5 * w * FINE_DT_S
+    x = np.concatenate([[0.0], np.cumsum(v[:-1] * np.cos(th_mid[:-1])) * FINE_DT_S])
+    y = np.concatenate([[0.0], np.cumsum(v[:-1] * np.sin(th_mid[:-1])) * FINE_DT_S])
+    return np.stack([x, y, theta], axis=1)
 
 
 def _trapezoid(n: int, dt: float, peak: float) -> FloatArray:
@@ -206,12 +223,7 @@ def simulate_motion(seed: int, duration_s: float, loop_min: tuple[float, float],
         v, w = waypoint_commands(duration_s, waypoints, walk_speed_mps, turn_rate_rps, stand_s)
     n = v.size
     t = np.arange(n) * FINE_DT_S
-    theta = np.concatenate([[0.0], np.cumsum(w[:-1]) * FINE_DT_S])
-    # midpoint heading per step: second-order accurate integration of the unicycle
-    th_mid = theta + 0.5 * w * FINE_DT_S
-    x = np.concatenate([[0.0], np.cumsum(v[:-1] * np.cos(th_mid[:-1])) * FINE_DT_S])
-    y = np.concatenate([[0.0], np.cumsum(v[:-1] * np.sin(th_mid[:-1])) * FINE_DT_S])
-    pose = np.stack([x, y, theta], axis=1)
+    pose = integrate_commands(v, w)
 
     activity = np.clip(np.maximum(v / max(walk_speed_mps, 1e-9), np.abs(w) / max(turn_rate_rps, 1e-9)), 0, 1)
     # the gait phase advances only while stepping
