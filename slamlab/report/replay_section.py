@@ -45,7 +45,9 @@ def _png_uri(grey: np.ndarray) -> str:
     from PIL import Image
 
     buf = io.BytesIO()
-    Image.fromarray(grey, mode="L").save(buf, format="PNG", optimize=True)
+    # zlib's default level, not `optimize`: on Intel's 100 frames optimize took 2.3 s of CPU
+    # (the report's largest cost) to make them 5.7 % smaller (1.33 MB against 1.41 MB)
+    Image.fromarray(grey, mode="L").save(buf, format="PNG")
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
