@@ -108,3 +108,5 @@ def test_run_level_checks_keep_their_messages():
         build_components(_cfg("mode=fast"))
     with pytest.raises(ConfigError, match=r"config 'record.particles': must be auto, true or false"):
         build_components(_cfg("record.particles=sometimes"))
+    with pytest.raises(ConfigError, match=r"config 'matcher.isolated': must be one of drop, stretch, got 'keep'"):
+        build_components(_cfg("+experiment=lidar2d", "matcher.isolated=keep"))

@@ -459,6 +459,69 @@ def test_isolated_far_hits_no_longer_hold_the_match_where_the_robot_was():
     assert held_t[0, 0] < 0.1 and abs(free_t[0, 0] - 0.2) < 0.05
 
 
+def test_surface_stretches_cover_the_gaps_around_lone_hits_on_a_line():
+    from slamlab.slam.matcher import STRETCH_MAX_SAMPLES, surface_stretches
+
+    dense = np.stack([np.linspace(0.0, 0.95, 20), np.full(20, 1.4)], axis=1)  # 5 cm apart
+    sparse = np.stack([np.array([2.0, 3.0, 4.0, 5.0, 9.0, 10.0]), np.full(6, 1.4)], axis=1)  # 1 m apart, then 4 m
+    off = np.array([[10.0, -3.0]])  # the line ends: the scan turns away
+    xy = np.vstack([dense, sparse, off])
+    ext = surface_stretches(xy, 0.6, 0.1)
+    assert ext.shape == (len(xy), 6)
+    assert not ext[:20].any()  # points with a close neighbour are points
+    # 2 m (after the dense run, 1.05 m away), 3 m and 4 m: lone hits on the line, halfway to each neighbour
+    for k, (before, after) in zip(range(20, 23), [(1.05, 1.0), (1.0, 1.0), (1.0, 1.0)]):
+        assert abs(abs(ext[k, 0]) - 1.0) < 1e-9 and abs(ext[k, 1]) < 1e-9  # along the wall (x)
+        n_b, n_a = np.ceil(before / 2 / 0.1), np.ceil(after / 2 / 0.1)
+        np.testing.assert_allclose(ext[k, 2:], [n_b, n_a, before / 2 / n_b, after / 2 / n_a])
+        assert ext[k, 4] <= 0.1 and ext[k, 5] <= 0.1
+    # 5 m -> 9 m: 4 m to cover in at most STRETCH_MAX_SAMPLES samples, so wider steps
+    assert ext[23, 3] == STRETCH_MAX_SAMPLES and abs(ext[23, 5] - 2.0 / STRETCH_MAX_SAMPLES) < 1e-12
+    assert not ext[25].any() and not ext[26].any()  # 10 m turns a corner; the last point has one neighbour
+    assert not surface_stretches(xy, 0.0, 0.1).any()  # max_gap 0: no lone points
+    bent = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0 + np.cos(0.2), np.sin(0.2)], [4.0, 1.0]])
+    assert surface_stretches(bent, 0.6, 0.1)[1, 2] > 0 and surface_stretches(bent, 0.6, 0.1)[2, 2] == 0  # 11 deg off: no line
+
+
+def test_a_stretch_scores_its_wall_across_but_not_along():
+    """A lone hit between blobs of a sparse wall: as a point it scores the comb (high on a blob,
+    nothing between), as a stretch the same wherever along the wall it lands, and less when
+    it moves off the wall."""
+    from slamlab.slam.matcher import score_field, score_stretches, surface_stretches
+
+    g = OccupancyGrid(MapSettings(resolution_m=0.05, initial_size_m=20.0), field_sigma_m=0.1, field_radius_m=0.3)
+    g.insert(np.zeros(2), np.array([[2.0, 1.4], [4.0, 1.4], [6.0, 1.4], [8.0, 1.4]]))  # blobs 2 m apart
+    scan = np.array([[1.0, 1.4], [3.0, 1.4], [5.0, 1.4], [7.0, 1.4], [9.0, 1.4]])  # lone hits, 2 m apart
+    ext = surface_stretches(scan, 0.6, 0.1)
+    assert (ext[1:4, 2:4] > 0).all()
+    pts, e = np.ascontiguousarray(scan[2:3]), np.ascontiguousarray(ext[2:3])  # the hit at x = 5
+    args = (g.field, g.origin[0], g.origin[1], 1.0 / g.res)
+    point = [score_field(*args, dx, 0.0, 0.0, pts) for dx in (0.0, 1.0)]
+    along = [score_stretches(*args, dx, 0.0, 0.0, pts, e) for dx in (0.0, 0.3, 0.6, 1.0)]
+    assert point[0] < 0.05 < 0.8 < point[1]  # as a point: the comb
+    assert min(along) > 0.8 and max(along) - min(along) < 0.1  # as a stretch: flat along the wall
+    assert score_stretches(*args, 0.0, 0.2, 0.0, pts, e) < 0.5 * min(along)  # and peaked across it
+    assert score_stretches(*args, 0.0, 0.0, 0.0, pts, np.zeros((1, 6))) == point[0]  # no stretch: a point
+
+
+def test_lone_hits_matched_as_stretches_no_longer_hold_the_match_either():
+    g = OccupancyGrid(MapSettings(resolution_m=0.05, initial_size_m=8.0), field_sigma_m=0.1, field_radius_m=0.3)
+    g.insert(np.zeros(2), _corridor_scan())
+    scan = ScanPoints(xy=_corridor_scan(), origin=np.zeros(2))
+    pred = np.array([[0.2, 0.0, 0.0]])
+    m = LikelihoodFieldMatcher(max_gap_m=0.6, isolated="stretch")
+    coarse, fine, ext = m._points(scan)
+    assert len(fine) > len(coarse) and len(ext) == len(fine) and (ext[:, 2] > 0).sum() > 10  # the lone hits are back
+    dense, _ = m.match(g, pred, scan)
+    from slamlab.slam.tiles import TiledMaps
+
+    maps = TiledMaps(MapSettings(resolution_m=0.05), 1, (0.0, 0.0), field_sigma_m=0.1, field_radius_m=0.3)
+    maps.insert_scan(np.zeros((1, 3)), _corridor_scan(), np.zeros(2))
+    tiled, _ = m.match_each(maps, pred, scan)
+    assert abs(dense[0, 0] - 0.2) < 0.05 and abs(tiled[0, 0] - 0.2) < 0.05
+    np.testing.assert_allclose(dense, tiled, atol=1e-9)  # the two kernels score stretches alike
+
+
 def test_the_grid_matcher_matches_only_the_points_with_a_close_neighbour():
     from slamlab.slam.matcher import isolated_filter
 

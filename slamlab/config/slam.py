@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, Optional
 
-from slamlab.config.checks import require_fraction, require_int, require_nonnegative, require_positive
+from slamlab.config.checks import require_choice, require_fraction, require_int, require_nonnegative, require_positive
 from slamlab.errors import ConfigError
 
 
@@ -193,9 +193,12 @@ class LikelihoodMatcherConfig:
     # weighs by its size, not by the angle it covers (a person close by cannot outvote the walls)
     max_gap_m: float = 0.0  # match only points with a scan neighbour within max_gap_m (0 = every point): isolated far
     # hits on a wall seen at a grazing angle map as separate blobs that hold the match where it was (`isolated_filter`)
+    isolated: str = "drop"  # the lone points max_gap_m singles out: `drop` them, or match those on a line as a
+    # `stretch` of surface in the hill climb (`surface_stretches`): their across-wall position without the comb
 
     def __post_init__(self) -> None:
         g = self.GROUP
+        require_choice(g, "isolated", self.isolated, ("drop", "stretch"))
         require_nonnegative(g, "prior_sigma_xy_m", self.prior_sigma_xy_m)
         require_nonnegative(g, "prior_sigma_yaw_rad", self.prior_sigma_yaw_rad)
         require_nonnegative(g, "voxel_m", self.voxel_m)

@@ -81,6 +81,55 @@ def tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts):
     return total
 
 
+@numba.njit(cache=True, inline="always")
+def _field_at(pool_f, lut, tab, H, W, u, v):
+    """The field bilinear at (u, v) (cells, centres at integers); 0 off the map."""
+    c0 = int(math.floor(u))
+    r0 = int(math.floor(v))
+    if c0 < 0 or r0 < 0 or c0 + 1 >= W or r0 + 1 >= H:
+        return 0.0
+    fu = u - c0
+    fv = v - r0
+    f00 = lut[_cell(pool_f, tab, r0, c0)]
+    f01 = lut[_cell(pool_f, tab, r0, c0 + 1)]
+    f10 = lut[_cell(pool_f, tab, r0 + 1, c0)]
+    f11 = lut[_cell(pool_f, tab, r0 + 1, c0 + 1)]
+    return (1.0 - fv) * ((1.0 - fu) * f00 + fu * f01) + fv * ((1.0 - fu) * f10 + fu * f11)
+
+
+@numba.njit(cache=True)
+def tiled_score_stretches(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts, ext):
+    """`tiled_score_field`, except that a point with a stretch (`matcher.surface_stretches`:
+    ext[i] = (ux, uy, n_before, n_after, step_before, step_after)) scores the largest field
+    value at samples along its stretch of surface."""
+    H = tab.shape[0] << TILE_SHIFT
+    W = tab.shape[1] << TILE_SHIFT
+    c = math.cos(th)
+    s = math.sin(th)
+    total = 0.0
+    for i in range(pts.shape[0]):
+        u = (x + c * pts[i, 0] - s * pts[i, 1] - ox) * inv_res - 0.5
+        v = (y + s * pts[i, 0] + c * pts[i, 1] - oy) * inv_res - 0.5
+        best = _field_at(pool_f, lut, tab, H, W, u, v)
+        if ext[i, 2] > 0 or ext[i, 3] > 0:
+            du = (c * ext[i, 0] - s * ext[i, 1]) * inv_res  # the stretch's direction in cells
+            dv = (s * ext[i, 0] + c * ext[i, 1]) * inv_res
+            for j in range(1, int(ext[i, 2]) + 1):
+                best = max(best, _field_at(pool_f, lut, tab, H, W, u - j * ext[i, 4] * du, v - j * ext[i, 4] * dv))
+            for j in range(1, int(ext[i, 3]) + 1):
+                best = max(best, _field_at(pool_f, lut, tab, H, W, u + j * ext[i, 5] * du, v + j * ext[i, 5] * dv))
+        total += best
+    return total
+
+
+@numba.njit(cache=True)
+def _score_fine(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts, ext):
+    """The hill climb's score: `tiled_score_stretches` when `ext` has a row per point, else `tiled_score_field`."""
+    if ext.shape[0] == pts.shape[0] and ext.shape[0] > 0:
+        return tiled_score_stretches(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts, ext)
+    return tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts)
+
+
 @numba.njit(cache=True, parallel=True)
 def tiled_grid_search(pool_lo, table, thresh, ox, oy, inv_res, poses, pts, offsets, out_poses, out_scores):
     """Per particle i (its map `table[i]`), the offset with the most hits (earlier offsets
@@ -174,7 +223,7 @@ def _coarse_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, pts, offsets
 
 
 @numba.njit(cache=True)
-def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw):
+def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, ext):
     """One particle: coarse grid, then hill climbing (see `matcher.field_search`). With
     `shifts` (K, 3: rows, cols, yaw index; empty = no) the coarse grid reuses each yaw's
     point placement across its whole-cell x/y offsets (`_coarse_by_cells`)."""
@@ -198,7 +247,7 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
         bx += offsets[bk, 0]
         by += offsets[bk, 1]
         bt += offsets[bk, 2]
-    cur = tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, bx, by, bt, fine_pts)
+    cur = _score_fine(pool_f, lut, tab, ox, oy, inv_res, bx, by, bt, fine_pts, ext)
     n_eval = 1
     cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
     ls = lin_step
@@ -229,7 +278,7 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
                     ct += as_
                 else:
                     ct -= as_
-                sc = tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, cx, cy, ct, fine_pts)
+                sc = _score_fine(pool_f, lut, tab, ox, oy, inv_res, cx, cy, ct, fine_pts, ext)
                 n_eval += 1
                 sc -= kxy * ((cx - px) ** 2 + (cy - py) ** 2) + kyaw * (ct - pt) ** 2
                 if sc > ms:
@@ -252,13 +301,14 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
 
 
 @numba.njit(cache=True, parallel=True)
-def tiled_field_search(pool_f, lut, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals):
+def tiled_field_search(pool_f, lut, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals, ext):
     """Per particle i, coarse-to-fine likelihood-field matching on its own map `table[i]`;
-    `out_evals[i]`: the hill climb's scores of `fine_pts` (for the map-read count)."""
+    `out_evals[i]`: the hill climb's scores of `fine_pts` (for the map-read count). `ext`:
+    the fine points' stretches (`matcher.surface_stretches`; no rows = none)."""
     for i in numba.prange(poses.shape[0]):
         bx, by, bt, cur, n_eval = _climb(
             pool_f, lut, table[i], ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2],
-            coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw,
+            coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, ext,
         )
         out_poses[i, 0] = bx
         out_poses[i, 1] = by
