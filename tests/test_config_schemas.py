@@ -110,3 +110,5 @@ def test_run_level_checks_keep_their_messages():
         build_components(_cfg("record.particles=sometimes"))
     with pytest.raises(ConfigError, match=r"config 'matcher.isolated': must be one of drop, stretch, got 'keep'"):
         build_components(_cfg("+experiment=lidar2d", "matcher.isolated=keep"))
+    with pytest.raises(ConfigError, match=r"config 'matcher.isolated': stretch needs matcher.max_gap_m > 0"):
+        build_components(_cfg("+experiment=lidar2d", "matcher.isolated=stretch", "matcher.max_gap_m=0"))

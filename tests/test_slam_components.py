@@ -471,7 +471,7 @@ def test_surface_stretches_cover_the_gaps_around_lone_hits_on_a_line():
     assert not ext[:20].any()  # points with a close neighbour are points
     # 2 m (after the dense run, 1.05 m away), 3 m and 4 m: lone hits on the line, halfway to each neighbour
     for k, (before, after) in zip(range(20, 23), [(1.05, 1.0), (1.0, 1.0), (1.0, 1.0)]):
-        assert abs(abs(ext[k, 0]) - 1.0) < 1e-9 and abs(ext[k, 1]) < 1e-9  # along the wall (x)
+        assert abs(ext[k, 0] - 1.0) < 1e-9 and abs(ext[k, 1]) < 1e-9  # along the wall, towards the next point (+x)
         n_b, n_a = np.ceil(before / 2 / 0.1), np.ceil(after / 2 / 0.1)
         np.testing.assert_allclose(ext[k, 2:], [n_b, n_a, before / 2 / n_b, after / 2 / n_a])
         assert ext[k, 4] <= 0.1 and ext[k, 5] <= 0.1
@@ -502,16 +502,57 @@ def test_a_stretch_scores_its_wall_across_but_not_along():
     assert min(along) > 0.8 and max(along) - min(along) < 0.1  # as a stretch: flat along the wall
     assert score_stretches(*args, 0.0, 0.2, 0.0, pts, e) < 0.5 * min(along)  # and peaked across it
     assert score_stretches(*args, 0.0, 0.0, 0.0, pts, np.zeros((1, 6))) == point[0]  # no stretch: a point
+    # between samples (0.05 m off them) the largest sample is a little lower: a 12 % ripple, not a comb
+    assert score_stretches(*args, 0.05, 0.0, 0.0, pts, e) > 0.85 * min(along)
+    # the same scan seen from a body turned by 0.5 rad: points and stretches turn with it
+    c, s_ = np.cos(-0.5), np.sin(-0.5)
+    turn = np.array([[c, -s_], [s_, c]])
+    e_turned = e.copy()
+    e_turned[:, :2] = e[:, :2] @ turn.T
+    for dx in (0.0, 0.3):
+        x, y = dx * np.cos(0.0), 0.0
+        np.testing.assert_allclose(score_stretches(*args, x, y, 0.5, pts @ turn.T, e_turned),
+                                   score_stretches(*args, x, y, 0.0, pts, e), rtol=1e-9)
+
+
+def test_a_stretch_reaches_each_neighbour_on_its_own_side():
+    """Uneven gaps: the hit at x = 4 has neighbours at 2 (2 m before) and 8 (4 m after); a
+    blob at x = 5.5 is within the half-gap after it, not before it."""
+    from slamlab.slam.matcher import score_stretches, surface_stretches
+
+    g = OccupancyGrid(MapSettings(resolution_m=0.05, initial_size_m=20.0), field_sigma_m=0.1, field_radius_m=0.3)
+    g.insert(np.zeros(2), np.array([[5.5, 1.4]]))
+    scan = np.array([[2.0, 1.4], [4.0, 1.4], [8.0, 1.4]])
+    ext = surface_stretches(scan, 0.6, 0.1)
+    args = (g.field, g.origin[0], g.origin[1], 1.0 / g.res)
+    pts, e = np.ascontiguousarray(scan[1:2]), np.ascontiguousarray(ext[1:2])
+    assert score_stretches(*args, 0.0, 0.0, 0.0, pts, e) > 0.5  # 1.5 m after: inside the 2 m half-gap (0.2 m samples)
+    flipped = e.copy()
+    flipped[:, [2, 3, 4, 5]] = e[:, [3, 2, 5, 4]]  # the two sides swapped: 1 m after, 2 m before
+    assert score_stretches(*args, 0.0, 0.0, 0.0, pts, flipped) < 0.05
 
 
 def test_lone_hits_matched_as_stretches_no_longer_hold_the_match_either():
+    from slamlab.slam.matcher import surface_stretches
+
     g = OccupancyGrid(MapSettings(resolution_m=0.05, initial_size_m=8.0), field_sigma_m=0.1, field_radius_m=0.3)
     g.insert(np.zeros(2), _corridor_scan())
     scan = ScanPoints(xy=_corridor_scan(), origin=np.zeros(2))
     pred = np.array([[0.2, 0.0, 0.0]])
     m = LikelihoodFieldMatcher(max_gap_m=0.6, isolated="stretch")
     coarse, fine, ext = m._points(scan)
-    assert len(fine) > len(coarse) and len(ext) == len(fine) and (ext[:, 2] > 0).sum() > 10  # the lone hits are back
+    # the climb's points: `drop`'s, and the lone hits on a line, in scan order
+    _, dropped, none = LikelihoodFieldMatcher(max_gap_m=0.6)._points(scan)
+    lone = scan.xy[surface_stretches(scan.xy, 0.6, 0.1)[:, 2] > 0]
+    assert len(none) == 0 and len(lone) > 10 and len(ext) == len(fine) == len(dropped) + len(lone)
+    order = np.argsort([int(np.flatnonzero((scan.xy == p).all(axis=1))[0]) for p in fine])
+    assert np.array_equal(order, np.arange(len(fine)))
+    assert {tuple(p) for p in fine} == {tuple(p) for p in np.vstack([dropped, lone])}
+    assert (ext[:, 2] > 0).sum() == len(lone)
+    # one score, no coarse grid: a stretch reads the field at each of its samples
+    one = LikelihoodFieldMatcher(max_gap_m=0.6, isolated="stretch", xy_half_width_m=0.0, yaw_half_width_rad=0.0, refine_levels=0)
+    one.match(g, pred, scan)
+    assert one.map_reads == 4 * (len(fine) + int(ext[:, 2:4].sum()))
     dense, _ = m.match(g, pred, scan)
     from slamlab.slam.tiles import TiledMaps
 

@@ -199,6 +199,8 @@ class LikelihoodMatcherConfig:
     def __post_init__(self) -> None:
         g = self.GROUP
         require_choice(g, "isolated", self.isolated, ("drop", "stretch"))
+        if self.isolated == "stretch" and not self.max_gap_m > 0:
+            raise ConfigError(f"{g}.isolated", "stretch needs matcher.max_gap_m > 0 (the gap that makes a scan point a lone hit)")
         require_nonnegative(g, "prior_sigma_xy_m", self.prior_sigma_xy_m)
         require_nonnegative(g, "prior_sigma_yaw_rad", self.prior_sigma_yaw_rad)
         require_nonnegative(g, "voxel_m", self.voxel_m)
