@@ -41,3 +41,14 @@ def test_the_simulated_log_reads_back_as_written_and_its_relations_are_the_truth
     assert relation_errors(log.t, log.truth, seq.relations)["trans_abs_mean_m"] < 1e-5
     assert relation_errors(log.t, log.odom, seq.relations)["trans_abs_mean_m"] > 0.1
     assert ((seq.relations.t2 - seq.relations.t1) > sim_carmen.LOOP_MIN_DT_S).sum() >= 10
+
+
+def test_the_summary_line_names_the_mean_the_worst_run_and_the_failures():
+    import pandas as pd
+
+    table = pd.DataFrame({"world_seed": [0, 0, 2, 3], "filter_seed": [0, 1, 1, 0],
+                          "rel_mean_m": [0.04, 0.06, 0.24, None]})
+    line = sim_carmen.summary(table)
+    assert line == "3 runs: smoothed relation error mean 0.113 m, worst 0.240 m (world 2, filter seed 1); 1 failed"
+    assert sim_carmen.summary(table.iloc[3:]) == "no run finished (1 failed)"
+    assert sim_carmen.summary(pd.DataFrame({"world_seed": [1], "filter_seed": [0], "error": ["x"]})) == "no run finished (1 failed)"
