@@ -590,22 +590,21 @@ class LikelihoodFieldMatcher(Matcher):
         """The scan points the coarse grid and the hill climb use (after `isolated_filter`
         and `voxel_filter`), and the climb's points' stretches (`surface_stretches`; no rows
         unless `isolated=stretch`)."""
-        xy = voxel_filter(isolated_filter(scan.xy, self.max_gap_m), self.voxel_m)
-        coarse = np.ascontiguousarray(xy[:: self.coarse_beam_step])
-        fine = np.ascontiguousarray(xy[:: self.beam_step])
-        near = has_close_neighbour(scan.xy, self.max_gap_m) if self.stretches and self.max_gap_m > 0 else None
-        if near is None or not near.any() or near.all():  # no lone point, or none kept apart (`isolated_filter`)
-            return coarse, fine, _NO_STRETCHES
-        ext = surface_stretches(scan.xy, self.max_gap_m, self.field_sigma_m)
-        lone = np.flatnonzero(ext[:, 2] > 0)
-        if not len(lone):
-            return coarse, fine, _NO_STRETCHES
-        # `drop`'s points, thinned as `drop` thins them, and the lone ones on a line in scan order
-        close = np.flatnonzero(near)
-        if self.voxel_m > 0:
-            close = close[_voxel_index(scan.xy[close], self.voxel_m)]
-        keep = np.union1d(close[:: self.beam_step], lone)
-        return coarse, np.ascontiguousarray(scan.xy[keep]), np.ascontiguousarray(ext[keep])
+        xy = scan.xy
+        near = has_close_neighbour(xy, self.max_gap_m) if self.max_gap_m > 0 else None
+        # `drop`'s points as indices into the scan: those with a close neighbour (all when none has one), voxel-thinned
+        close = np.flatnonzero(near) if near is not None and near.any() else np.arange(len(xy))
+        if self.voxel_m > 0 and len(close):
+            close = close[_voxel_index(xy[close], self.voxel_m)]
+        fine = close[:: self.beam_step]
+        ext = _NO_STRETCHES
+        if self.stretches and near is not None and near.any() and not near.all():
+            stretches = surface_stretches(xy, self.max_gap_m, self.field_sigma_m)
+            lone = np.flatnonzero(stretches[:, 2] > 0)
+            if len(lone):  # add the lone hits on a line, in scan order
+                fine = np.union1d(fine, lone)
+                ext = np.ascontiguousarray(stretches[fine])
+        return np.ascontiguousarray(xy[close[:: self.coarse_beam_step]]), np.ascontiguousarray(xy[fine]), ext
 
     def _count_field_reads(self, n: int, n_coarse: int, n_fine: int, evals: np.ndarray, ext: FloatArray) -> None:
         coarse = n * len(self.offsets) * n_coarse if len(self.offsets) > 1 else 0
