@@ -273,8 +273,8 @@ def main(argv: list[str] | None = None) -> int:
     jobs = [(w, s) for w in worlds for s in seeds]
     (args.out / "runs").mkdir(parents=True, exist_ok=True)
     with ThreadPoolExecutor(max_workers=2) as pool:  # two slamlab processes at most
-        rows = list(pool.map(lambda job: {"world_seed": job[0], **run_one(clfs[job[0]], job[1], args.out / "runs", args.overrides)}, jobs))
-    table = pd.DataFrame([{"world_seed": r.pop("world_seed"), "scale": args.scale, "overrides": " ".join(args.overrides), **r} for r in rows])
+        rows = list(pool.map(lambda job: run_one(clfs[job[0]], job[1], args.out / "runs", args.overrides), jobs))
+    table = pd.DataFrame([{"world_seed": w, "scale": args.scale, "overrides": " ".join(args.overrides), **r} for (w, _), r in zip(jobs, rows)])
     stem = clfs[worlds[0]].stem if len(worlds) == 1 else f"{clfs[worlds[0]].stem.rsplit('_w', 1)[0]}_w{'-'.join(map(str, worlds))}"
     csv = args.out / f"sim_carmen_{stem}_{time.strftime('%Y%m%d-%H%M%S')}.csv"  # one per invocation
     write_text(csv, table.to_csv(index=False))
