@@ -182,14 +182,19 @@ def accuracy_metrics(seq: Sequence, result: SlamResult) -> dict:
         if gt.occupancy is not None:
             out["map"] = map_agreement(result.log_odds, gt.occupancy)
     if seq.relations is not None:
-        from slamlab.eval.relations import relation_errors
+        from slamlab.eval.relations import LOOP_MIN_DT_S, relation_errors, relation_errors_by_span
 
         relations = relations_within(seq.relations, result.times)
         if len(relations.t1):
-            rel = relation_errors(result.times, result.trajectory, relations)
-            rel["causal"] = relation_errors(result.times, result.causal, relations)
-            rel["odometry"] = relation_errors(result.times, result.odometry, relations)
+
+            def errors(poses: np.ndarray) -> dict:  # the whole mean, then local and loop relations apart
+                return relation_errors(result.times, poses, relations) | relation_errors_by_span(result.times, poses, relations)
+
+            rel = errors(result.trajectory)
+            rel["causal"] = errors(result.causal)
+            rel["odometry"] = errors(result.odometry)
             rel["of_total"] = int(len(seq.relations.t1))
+            rel["loop_min_dt_s"] = LOOP_MIN_DT_S
             out["relations"] = rel
     return out
 

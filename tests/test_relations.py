@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slamlab.eval.relations import match_times, relation_errors, relation_residuals
+from slamlab.eval.relations import LOOP_MIN_DT_S, match_times, relation_errors, relation_errors_by_span, relation_residuals
 from slamlab.frames import Relations
 from slamlab.geometry import se2_compose, se2_inverse
 
@@ -53,6 +53,30 @@ def test_known_per_relation_errors_give_known_statistics():
     assert e["rot_sq_mean_deg2"] == pytest.approx(14.0 / 3, abs=1e-6)
     assert e["rot_sq_std_deg2"] == pytest.approx(np.std([1.0, 4.0, 9.0], ddof=1), abs=1e-6)
     assert all(type(v) in (int, float) for v in e.values())
+
+
+def test_local_and_loop_relations_are_scored_apart():
+    rng = np.random.default_rng(5)
+    n = 100
+    poses = np.column_stack([rng.uniform(-20, 20, n), rng.uniform(-20, 20, n), rng.uniform(-np.pi, np.pi, n)])
+    times = 1000.0 + np.arange(n) * 1.0  # one pose a second
+    # dt 1 s and 3 s (local), 40 s, 60 s and exactly LOOP_MIN_DT_S (loop), and one whose t2 comes first (local)
+    pairs = np.array([[0, 1], [2, 5], [0, 40], [10, 70], [50, 50 + int(LOOP_MIN_DT_S)], [90, 20]])
+    err = np.array([0.1, 0.3, 1.0, 0.5, 0.6, 0.2])
+    c = np.column_stack([err, np.zeros(6), np.radians([1.0, 2.0, 10.0, 20.0, 30.0, 3.0])])
+    rels = _relations_with_error(poses, times, pairs, c)
+    split = relation_errors_by_span(times, poses, rels)
+    assert split["local"]["count"] == 3 and split["loop"]["count"] == 3
+    assert split["local"]["trans_abs_mean_m"] == pytest.approx(0.2, abs=1e-9)
+    assert split["loop"]["trans_abs_mean_m"] == pytest.approx(0.7, abs=1e-9)
+    assert split["local"]["rot_abs_mean_deg"] == pytest.approx(2.0, abs=1e-6)
+    assert split["loop"]["rot_abs_mean_deg"] == pytest.approx(20.0, abs=1e-6)
+    whole = relation_errors(times, poses, rels)
+    assert whole["trans_abs_mean_m"] == pytest.approx((3 * 0.2 + 3 * 0.7) / 6, abs=1e-9)
+    # a log whose relations are all local: the loop part is empty, not an error
+    short = relation_errors_by_span(times, poses, rels, loop_min_dt_s=1000.0)
+    assert short["local"]["count"] == 6 and short["loop"]["count"] == 0
+    assert np.isnan(short["loop"]["trans_abs_mean_m"])
 
 
 def test_global_frame_change_does_not_change_errors():

@@ -25,6 +25,9 @@ from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, 
 # Relation stamps are snapped to scan times when a log is loaded (slamlab.datasets.relations),
 # so matching times are equal; the tolerance only absorbs conversions through other tools.
 DEFAULT_TIME_TOL_S = 1e-6
+# relations spanning this long or longer (s) are loop relations (`relation_errors_by_span`): the
+# benchmark logs' relations span either under 10 s or over 60 s, so the split does not hinge on it
+LOOP_MIN_DT_S = 30.0
 
 
 def find_times(
@@ -101,6 +104,29 @@ def relation_errors(
     relations the statistics are NaN. Raises ValueError if a relation time has no pose in `times`.
     """
     trans_m, rot_rad = relation_residuals(times, poses, relations, time_tol_s)
+    return _summary(trans_m, rot_rad)
+
+
+def relation_errors_by_span(
+    times: np.ndarray,
+    poses: np.ndarray,
+    relations: Relations,
+    loop_min_dt_s: float = LOOP_MIN_DT_S,
+    time_tol_s: float = DEFAULT_TIME_TOL_S,
+) -> dict[str, dict[str, float]]:
+    """`relation_errors` of the local relations (t2 - t1 < `loop_min_dt_s`, s) and of the loop
+    relations (the rest), as {"local": ..., "loop": ...}. Why: the two answer different
+    questions. A local relation spans a few scans (tracking); a loop relation compares a
+    revisit with the first visit minutes earlier, so it is only small when the loop closed.
+    A mean over both hides which one failed (Intel: 1,211 loop relations of 2,984; ACES: 90
+    of 1,279, which carry the online estimate's gap to the smoothed one)."""
+    trans_m, rot_rad = relation_residuals(times, poses, relations, time_tol_s)
+    loop = (np.asarray(relations.t2) - np.asarray(relations.t1)) >= loop_min_dt_s
+    return {"local": _summary(trans_m[~loop], rot_rad[~loop]), "loop": _summary(trans_m[loop], rot_rad[loop])}
+
+
+def _summary(trans_m: FloatArray, rot_rad: FloatArray) -> dict[str, float]:
+    """`relation_errors`' statistics of per-relation errors (m, rad)."""
     rot_deg = np.degrees(np.abs(rot_rad))
 
     def stats(values: np.ndarray) -> tuple[float, float]:

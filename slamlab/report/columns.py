@@ -35,6 +35,10 @@ METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("trajectory.odometry_rmse_m", "odometry RMSE (m)", None),
     MetricSpec("relations.trans_abs_mean_m", "rel. trans err (m)", "min"),
     MetricSpec("relations.rot_abs_mean_deg", "rel. rot err (°)", "min"),
+    # local relations span seconds (tracking), loop relations a revisit (loop closure): eval.relations
+    MetricSpec("relations.local.trans_abs_mean_m", "rel. err local (m)", "min", table=False),
+    MetricSpec("relations.loop.trans_abs_mean_m", "rel. err loop (m)", "min"),
+    MetricSpec("relations.causal.trans_abs_mean_m", "online rel. err (m)", "min", table=False),
     MetricSpec("map.agreement", "map agreement", "max"),
     MetricSpec("map.occupied_precision", "occ. precision", "max", table=False),
     MetricSpec("map.occupied_recall", "occ. recall", "max", table=False),

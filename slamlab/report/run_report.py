@@ -102,6 +102,11 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
         out.append(("rel. translation error (m)", fmt_number(rel["trans_abs_mean_m"])))
     if "rot_abs_mean_deg" in rel:
         out.append(("rel. rotation error (°)", fmt_number(rel["rot_abs_mean_deg"])))
+    for label, part in (("rel. error", rel), ("online estimate's rel. error", rel.get("causal"))):
+        if isinstance(part, dict) and isinstance(part.get("local"), dict) and isinstance(part.get("loop"), dict):
+            local, loop = part["local"], part["loop"]
+            out.append((f"{label}, local / loop relations (m; {fmt_number(local.get('count'))} / {fmt_number(loop.get('count'))})",
+                        f"{fmt_number(local.get('trans_abs_mean_m'))} / {fmt_number(loop.get('trans_abs_mean_m'))}"))
     odo_rel = rel.get("odometry") if isinstance(rel.get("odometry"), dict) else {}
     if "trans_abs_mean_m" in odo_rel:
         out.append(("odometry rel. error, the baseline (m / °)",
