@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slamlab.eval.relations import LOOP_MIN_DT_S, match_times, relation_errors, relation_errors_by_span, relation_residuals
+from slamlab.eval.relations import LOOP_MIN_DT_S, SPAN_KEYS, match_times, relation_errors, relation_errors_by_span, relation_residuals
 from slamlab.frames import Relations
 from slamlab.geometry import se2_compose, se2_inverse
 
@@ -67,6 +67,7 @@ def test_local_and_loop_relations_are_scored_apart():
     rels = _relations_with_error(poses, times, pairs, c)
     split = relation_errors_by_span(times, poses, rels)
     assert split["local"]["count"] == 3 and split["loop"]["count"] == 3
+    assert tuple(split["local"]) == tuple(split["loop"]) == SPAN_KEYS
     assert split["local"]["trans_abs_mean_m"] == pytest.approx(0.2, abs=1e-9)
     assert split["loop"]["trans_abs_mean_m"] == pytest.approx(0.7, abs=1e-9)
     assert split["local"]["rot_abs_mean_deg"] == pytest.approx(2.0, abs=1e-6)
