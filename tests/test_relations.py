@@ -60,23 +60,27 @@ def test_local_and_loop_relations_are_scored_apart():
     n = 100
     poses = np.column_stack([rng.uniform(-20, 20, n), rng.uniform(-20, 20, n), rng.uniform(-np.pi, np.pi, n)])
     times = 1000.0 + np.arange(n) * 1.0  # one pose a second
-    # dt 1 s and 3 s (local), 40 s, 60 s and exactly LOOP_MIN_DT_S (loop), and one whose t2 comes first (local)
-    pairs = np.array([[0, 1], [2, 5], [0, 40], [10, 70], [50, 50 + int(LOOP_MIN_DT_S)], [90, 20]])
-    err = np.array([0.1, 0.3, 1.0, 0.5, 0.6, 0.2])
-    c = np.column_stack([err, np.zeros(6), np.radians([1.0, 2.0, 10.0, 20.0, 30.0, 3.0])])
+    # local: dt 1 s, 3 s and -1 s (t2 first); loop: 40 s, 60 s, exactly LOOP_MIN_DT_S, and -70 s (t2 first, a revisit)
+    pairs = np.array([[0, 1], [2, 5], [21, 20], [0, 40], [10, 70], [50, 50 + int(LOOP_MIN_DT_S)], [90, 20]])
+    err = np.array([0.1, 0.3, 0.2, 1.0, 0.5, 0.6, 0.7])
+    c = np.column_stack([err, np.zeros(7), np.radians([1.0, 2.0, 3.0, 10.0, 20.0, 30.0, 20.0])])
     rels = _relations_with_error(poses, times, pairs, c)
     split = relation_errors_by_span(times, poses, rels)
-    assert split["local"]["count"] == 3 and split["loop"]["count"] == 3
+    assert split["local"]["count"] == 3 and split["loop"]["count"] == 4
     assert tuple(split["local"]) == tuple(split["loop"]) == SPAN_KEYS
     assert split["local"]["trans_abs_mean_m"] == pytest.approx(0.2, abs=1e-9)
     assert split["loop"]["trans_abs_mean_m"] == pytest.approx(0.7, abs=1e-9)
     assert split["local"]["rot_abs_mean_deg"] == pytest.approx(2.0, abs=1e-6)
     assert split["loop"]["rot_abs_mean_deg"] == pytest.approx(20.0, abs=1e-6)
     whole = relation_errors(times, poses, rels)
-    assert whole["trans_abs_mean_m"] == pytest.approx((3 * 0.2 + 3 * 0.7) / 6, abs=1e-9)
+    assert whole["trans_abs_mean_m"] == pytest.approx((3 * 0.2 + 4 * 0.7) / 7, abs=1e-9)
+    # each part is `relation_errors` of its own relations, standard deviations included
+    for name, rows in (("local", [0, 1, 2]), ("loop", [3, 4, 5, 6])):
+        alone = relation_errors(times, poses, Relations(rels.t1[rows], rels.t2[rows], rels.rel[rows]))
+        assert split[name] == pytest.approx({k: alone[k] for k in SPAN_KEYS})
     # a log whose relations are all local: the loop part is empty, not an error
     short = relation_errors_by_span(times, poses, rels, loop_min_dt_s=1000.0)
-    assert short["local"]["count"] == 6 and short["loop"]["count"] == 0
+    assert short["local"]["count"] == 7 and short["loop"]["count"] == 0
     assert np.isnan(short["loop"]["trans_abs_mean_m"])
 
 

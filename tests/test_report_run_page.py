@@ -187,6 +187,10 @@ def test_intel_run_writes_per_relation_errors_that_match_its_metrics(intel_run: 
             assert np.isclose(rel["odometry_trans_m"][mask].mean(), m["odometry"][part]["trans_abs_mean_m"], rtol=1e-4)
         else:
             assert m[part]["trans_abs_mean_m"] is None or np.isnan(m[part]["trans_abs_mean_m"])
+    # all local here, so each path's local part is its whole: the online split scores the online path
+    for path in (m, m["causal"], m["odometry"]):
+        assert path["local"]["trans_abs_mean_m"] == pytest.approx(path["trans_abs_mean_m"], rel=1e-12)
+    assert m["causal"]["trans_abs_mean_m"] != m["trans_abs_mean_m"]
 
 
 @pytest.mark.slow

@@ -39,6 +39,8 @@ METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("relations.local.trans_abs_mean_m", "rel. err local (m)", "min", table=False),
     MetricSpec("relations.loop.trans_abs_mean_m", "rel. err loop (m)", "min"),
     MetricSpec("relations.causal.trans_abs_mean_m", "online rel. err (m)", "min", table=False),
+    MetricSpec("relations.causal.local.trans_abs_mean_m", "online rel. err local (m)", "min", table=False),
+    MetricSpec("relations.causal.loop.trans_abs_mean_m", "online rel. err loop (m)", "min", table=False),
     MetricSpec("map.agreement", "map agreement", "max"),
     MetricSpec("map.occupied_precision", "occ. precision", "max", table=False),
     MetricSpec("map.occupied_recall", "occ. recall", "max", table=False),
