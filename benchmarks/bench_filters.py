@@ -81,15 +81,16 @@ def lidar2d(out: Path, n_jobs: int, seeds: range) -> None:
     rows = []
     for r in _many(jobs, out / "lidar2d", n_jobs):
         rel = r.get("relations", {})
+        causal = rel.get("causal", {})
         job = r["job"]
         rows.append({"log": job["log"], "step_m_rad": job["step"], "seed": job["seed"], "filter": r.get("filter"),
-                     "causal_m": rel.get("causal", {}).get("trans_abs_mean_m", float("nan")),
-                     # the causal error of local and of loop relations (eval.relations.relation_errors_by_span)
-                     "causal_local_m": rel.get("causal", {}).get("local", {}).get("trans_abs_mean_m", float("nan")),
-                     "causal_loop_m": rel.get("causal", {}).get("loop", {}).get("trans_abs_mean_m", float("nan")),
+                     "causal_m": causal.get("trans_abs_mean_m", float("nan")),
+                     # the causal error of local and of loop relations (eval.relations.relation_errors, loop_min_dt_s)
+                     "causal_local_m": causal.get("local", {}).get("trans_abs_mean_m", float("nan")),
+                     "causal_loop_m": causal.get("loop", {}).get("trans_abs_mean_m", float("nan")),
                      "smoothed_m": rel.get("trans_abs_mean_m", float("nan")),
                      "smoothed_loop_m": rel.get("loop", {}).get("trans_abs_mean_m", float("nan")),
-                     "rot_deg": rel.get("causal", {}).get("rot_abs_mean_deg", float("nan")),
+                     "rot_deg": causal.get("rot_abs_mean_deg", float("nan")),
                      "status": r.get("status", "?")})
     df = pd.DataFrame(rows)
     print("\n## lidar2d: relation error per run (m)")

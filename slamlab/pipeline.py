@@ -182,17 +182,14 @@ def accuracy_metrics(seq: Sequence, result: SlamResult) -> dict:
         if gt.occupancy is not None:
             out["map"] = map_agreement(result.log_odds, gt.occupancy)
     if seq.relations is not None:
-        from slamlab.eval.relations import LOOP_MIN_DT_S, relation_errors, relation_errors_by_span
+        from slamlab.eval.relations import LOOP_MIN_DT_S, relation_errors
 
         relations = relations_within(seq.relations, result.times)
         if len(relations.t1):
-
-            def errors(poses: np.ndarray) -> dict:  # the whole mean, then local and loop relations apart
-                return relation_errors(result.times, poses, relations) | relation_errors_by_span(result.times, poses, relations)
-
-            rel = errors(result.trajectory)
-            rel["causal"] = errors(result.causal)
-            rel["odometry"] = errors(result.odometry)
+            # each path as a whole, and its local and loop relations apart
+            rel = relation_errors(result.times, result.trajectory, relations, loop_min_dt_s=LOOP_MIN_DT_S)
+            rel["causal"] = relation_errors(result.times, result.causal, relations, loop_min_dt_s=LOOP_MIN_DT_S)
+            rel["odometry"] = relation_errors(result.times, result.odometry, relations, loop_min_dt_s=LOOP_MIN_DT_S)
             rel["of_total"] = int(len(seq.relations.t1))
             rel["loop_min_dt_s"] = LOOP_MIN_DT_S
             out["relations"] = rel

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slamlab.eval.relations import LOOP_MIN_DT_S, SPAN_KEYS, match_times, relation_errors, relation_errors_by_span, relation_residuals
+from slamlab.eval.relations import LOOP_MIN_DT_S, SPAN_KEYS, match_times, relation_errors, relation_residuals
 from slamlab.frames import Relations
 from slamlab.geometry import se2_compose, se2_inverse
 
@@ -65,7 +65,7 @@ def test_local_and_loop_relations_are_scored_apart():
     err = np.array([0.1, 0.3, 0.2, 1.0, 0.5, 0.6, 0.7])
     c = np.column_stack([err, np.zeros(7), np.radians([1.0, 2.0, 3.0, 10.0, 20.0, 30.0, 20.0])])
     rels = _relations_with_error(poses, times, pairs, c)
-    split = relation_errors_by_span(times, poses, rels)
+    split = relation_errors(times, poses, rels, loop_min_dt_s=LOOP_MIN_DT_S)
     assert split["local"]["count"] == 3 and split["loop"]["count"] == 4
     assert tuple(split["local"]) == tuple(split["loop"]) == SPAN_KEYS
     assert split["local"]["trans_abs_mean_m"] == pytest.approx(0.2, abs=1e-9)
@@ -79,7 +79,7 @@ def test_local_and_loop_relations_are_scored_apart():
         alone = relation_errors(times, poses, Relations(rels.t1[rows], rels.t2[rows], rels.rel[rows]))
         assert split[name] == pytest.approx({k: alone[k] for k in SPAN_KEYS})
     # a log whose relations are all local: the loop part is empty, not an error
-    short = relation_errors_by_span(times, poses, rels, loop_min_dt_s=1000.0)
+    short = relation_errors(times, poses, rels, loop_min_dt_s=1000.0)
     assert short["local"]["count"] == 7 and short["loop"]["count"] == 0
     assert np.isnan(short["loop"]["trans_abs_mean_m"])
 

@@ -177,7 +177,7 @@ def test_intel_run_writes_per_relation_errors_that_match_its_metrics(intel_run: 
     assert np.isclose(rel["slam_trans_m"].mean(), m["trans_abs_mean_m"], rtol=1e-4)
     assert np.isclose(rel["slam_rot_deg"].mean(), m["rot_abs_mean_deg"], rtol=1e-4)
     assert np.isclose(rel["odometry_trans_m"].mean(), m["odometry"]["trans_abs_mean_m"], rtol=1e-4)
-    # the same errors split into local and loop relations (eval.relations.relation_errors_by_span); the first
+    # the same errors split into local and loop relations (eval.relations.relation_errors, loop_min_dt_s); the first
     # 800 Intel scans hold only local relations, so the loop part is empty (the split is tested in test_relations)
     loop = (rel["t2"] - rel["t1"]) >= m["loop_min_dt_s"]
     for part, mask in (("local", ~loop), ("loop", loop)):

@@ -25,7 +25,7 @@ from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, 
 # Relation stamps are snapped to scan times when a log is loaded (slamlab.datasets.relations),
 # so matching times are equal; the tolerance only absorbs conversions through other tools.
 DEFAULT_TIME_TOL_S = 1e-6
-# relations spanning this long or longer (s) are loop relations (`relation_errors_by_span`); the
+# relations spanning this long or longer (s) are loop relations (`relation_errors`); the
 # benchmark logs' relations nearly all span under 10 s or over 60 s (between: Intel 4 of 2,984,
 # ACES 13 of 1,279), so the split hardly depends on the value
 LOOP_MIN_DT_S = 30.0
@@ -96,40 +96,34 @@ def relation_residuals(
 
 
 def relation_errors(
-    times: np.ndarray, poses: np.ndarray, relations: Relations, time_tol_s: float = DEFAULT_TIME_TOL_S
-) -> dict[str, float]:
+    times: np.ndarray,
+    poses: np.ndarray,
+    relations: Relations,
+    time_tol_s: float = DEFAULT_TIME_TOL_S,
+    loop_min_dt_s: float | None = None,
+) -> dict:
     """Kuemmerle et al. relation errors of a trajectory, as plain Python numbers.
 
     Keys: count (int, relations used); trans_abs_mean_m, trans_abs_std_m, trans_sq_mean_m2, trans_sq_std_m2
     (metres); rot_abs_mean_deg, rot_abs_std_deg, rot_sq_mean_deg2, rot_sq_std_deg2
     (degrees). Standard deviations are sample (ddof=1; NaN for a single relation). With no
     relations the statistics are NaN. Raises ValueError if a relation time has no pose in `times`.
+
+    With `loop_min_dt_s` (s, e.g. `LOOP_MIN_DT_S`) also "local" and "loop": the count, means
+    and standard deviations (`SPAN_KEYS`) of the relations spanning under it (|t2 - t1|) and
+    of the rest. Why: the two answer different questions. A local relation spans a few scans
+    (tracking); a loop relation compares a revisit with the first visit minutes earlier, so
+    it is only small when the loop closed. A mean over both hides which one failed (Intel:
+    1,211 loop relations of 2,984; ACES: 90 of 1,279, which carry the online estimate's gap to
+    the smoothed one).
     """
     trans_m, rot_rad = relation_residuals(times, poses, relations, time_tol_s)
-    return _summary(trans_m, rot_rad)
-
-
-def relation_errors_by_span(
-    times: np.ndarray,
-    poses: np.ndarray,
-    relations: Relations,
-    loop_min_dt_s: float = LOOP_MIN_DT_S,
-    time_tol_s: float = DEFAULT_TIME_TOL_S,
-) -> dict[str, dict[str, float]]:
-    """`relation_errors`' count, means and standard deviations (`SPAN_KEYS`) of the local
-    relations (|t2 - t1| < `loop_min_dt_s`, s) and of the loop relations (the rest), as
-    {"local": ..., "loop": ...}. Why: the two answer different
-    questions. A local relation spans a few scans (tracking); a loop relation compares a
-    revisit with the first visit minutes earlier, so it is only small when the loop closed.
-    A mean over both hides which one failed (Intel: 1,211 loop relations of 2,984; ACES: 90
-    of 1,279, which carry the online estimate's gap to the smoothed one)."""
-    trans_m, rot_rad = relation_residuals(times, poses, relations, time_tol_s)
-    loop = np.abs(np.asarray(relations.t2) - np.asarray(relations.t1)) >= loop_min_dt_s  # either order: a revisit
-
-    def part(keep: np.ndarray) -> dict[str, float]:  # the means and spreads; the squares' stay with the whole
-        return {k: v for k, v in _summary(trans_m[keep], rot_rad[keep]).items() if k in SPAN_KEYS}
-
-    return {"local": part(~loop), "loop": part(loop)}
+    out: dict = _summary(trans_m, rot_rad)
+    if loop_min_dt_s is not None:
+        loop = np.abs(np.asarray(relations.t2) - np.asarray(relations.t1)) >= loop_min_dt_s  # either order: a revisit
+        for name, keep in (("local", ~loop), ("loop", loop)):  # the squares' statistics stay with the whole
+            out[name] = {k: v for k, v in _summary(trans_m[keep], rot_rad[keep]).items() if k in SPAN_KEYS}
+    return out
 
 
 def _summary(trans_m: FloatArray, rot_rad: FloatArray) -> dict[str, float]:
