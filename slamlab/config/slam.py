@@ -195,10 +195,15 @@ class LikelihoodMatcherConfig:
     # hits on a wall seen at a grazing angle map as separate blobs that hold the match where it was (`isolated_filter`)
     isolated: str = "drop"  # the lone points max_gap_m singles out: `drop` them, or match those on a line as a
     # `stretch` of surface in the hill climb (`surface_stretches`): their across-wall position without the comb
+    refine: str = "climb"  # after the coarse grid: `climb` (hill climbing, refine_levels halvings) or `gauss_newton`
+    # (damped Gauss-Newton steps on the same score, slam/gauss_newton.py: ~7x fewer scores on Intel)
 
     def __post_init__(self) -> None:
         g = self.GROUP
         require_choice(g, "isolated", self.isolated, ("drop", "stretch"))
+        require_choice(g, "refine", self.refine, ("climb", "gauss_newton"))
+        if self.refine == "gauss_newton" and self.isolated == "stretch":
+            raise ConfigError(f"{g}.refine", "gauss_newton scores every point at its place; isolated=stretch needs refine=climb")
         if self.isolated == "stretch" and not self.max_gap_m > 0:
             raise ConfigError(f"{g}.isolated", "stretch needs matcher.max_gap_m > 0 (the gap that makes a scan point a lone hit)")
         require_nonnegative(g, "prior_sigma_xy_m", self.prior_sigma_xy_m)

@@ -15,7 +15,7 @@ import numpy as np
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
 from slamlab.config.slam import MapConfig
-from slamlab.slam.raycast import gaussian_kernel, raycast_update, update_field
+from slamlab.slam.raycast import field_radius_cells, gaussian_kernel, raycast_update, update_field
 
 # The `map/` config group's schema is the settings object the grid reads: resolution_m,
 # log-odds (occupied > 0, free < 0, clamp bounds), occupied_threshold, ground_threshold_m,
@@ -47,7 +47,7 @@ class OccupancyGrid:
         self.kernel: np.ndarray | None = None
         self.field: np.ndarray | None = None
         if field_sigma_m > 0:
-            radius = max(int(np.ceil(max(field_radius_m, field_sigma_m) / self.res)), 1)
+            radius = field_radius_cells(field_sigma_m, field_radius_m, self.res)
             self.kernel = gaussian_kernel(field_sigma_m / self.res, radius)
             self.field = np.zeros((n, n), dtype=np.float32)
         self.grow_count = 0

@@ -31,8 +31,16 @@ from slamlab.errors import ConfigError
 from slamlab.geometry import FloatArray, wrap_angle
 from slamlab.slam.grid import OccupancyGrid
 from slamlab.slam.scan import ScanPoints
+from slamlab.slam.gauss_newton import distance_table, refine_pose
+from slamlab.slam.raycast import field_radius_cells
 from slamlab.slam.tiled_match import tiled_field_search, tiled_grid_search
-from slamlab.slam.tiles import TiledMaps
+from slamlab.slam.tiles import TILE, TiledMaps
+
+# `refine_pose` on a dense field reads no tiles
+_NO_POOL = np.zeros((0, TILE, TILE), dtype=np.uint8)
+_NO_TABLE = np.zeros((0, 0), dtype=np.int32)
+_NO_LUT = np.zeros(0, dtype=np.float32)
+_CLIMB = np.zeros(0)  # no distance table: `field_search` / `tiled_field_search` hill-climb
 
 @numba.njit(cache=True)
 def score_hits(lo, thresh, ox, oy, inv_res, x, y, th, pts):
@@ -207,14 +215,16 @@ def grid_search_shifts(lo, thresh, ox, oy, inv_res, poses, pts, offsets, shifts,
 
 
 @numba.njit(cache=True, parallel=True)
-def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals, ext):
+def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals, ext, lut_d, sigma_cells, w_scale):
     """Coarse grid over `offsets` with `coarse_pts`, then hill climbing with `fine_pts`:
     try +-lin_step in x, y and +-ang_step in yaw, take the best improving move, repeat; when
     none improves halve both steps, `levels` times. Every score is penalised by the motion
     prior `kxy * |dxy|^2 + kyaw * dyaw^2` (offset from the predicted pose), so flat
     directions (corridors) do not random-walk. Writes best poses, their fine scores and the
     number of fine scores computed (`out_evals`, for the map-read count). `ext`: the fine
-    points' stretches (`surface_stretches`; no rows = none)."""
+    points' stretches (`surface_stretches`; no rows = none). With `lut_d` = [radius + 1 in
+    cells], Gauss-Newton steps replace the hill climb (`gauss_newton.refine_pose`; field
+    sigma `sigma_cells`, `w_scale` = 1 / sigma_cells^2)."""
     for i in numba.prange(poses.shape[0]):  # particles on all cores; each result is its own
         px = poses[i, 0]
         py = poses[i, 1]
@@ -234,6 +244,16 @@ def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, l
             bx += offsets[bk, 0]
             by += offsets[bk, 1]
             bt += offsets[bk, 2]
+        if lut_d.shape[0] > 0:
+            bx, by, bt, cur, n_eval = refine_pose(
+                field, _NO_POOL, _NO_TABLE, _NO_LUT, lut_d, sigma_cells, ox, oy, inv_res, px, py, pt, bx, by, bt, fine_pts, kxy, kyaw, w_scale, 2.0 * lin_step, 2.0 * ang_step,
+            )
+            out_poses[i, 0] = bx
+            out_poses[i, 1] = by
+            out_poses[i, 2] = bt
+            out_scores[i] = cur
+            out_evals[i] = n_eval
+            continue
         cur = _score_fine(field, ox, oy, inv_res, bx, by, bt, fine_pts, ext)
         n_eval = 1
         cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
@@ -512,6 +532,9 @@ class LikelihoodFieldMatcher(Matcher):
     - xy_half_width_m, xy_step_m, yaw_half_width_rad, yaw_step_rad: the coarse grid
       (evaluated with every `coarse_beam_step`-th point); half widths 0 skip it.
     - beam_step: points used by the hill climb and the score (every k-th).
+    - refine: what follows the coarse grid: `climb` (hill climbing: +-x, +-y, +-yaw moves,
+      `refine_levels` step halvings starting from half the coarse steps) or `gauss_newton`
+      (damped Gauss-Newton steps on the same score, `gauss_newton.py`: ~7x fewer scores).
     - refine_levels: step halvings of the hill climb, starting from half the coarse steps.
     - prior_sigma_xy_m / prior_sigma_yaw_rad: motion prior; a pose offset d from the
       prediction costs 0.5 (d / sigma)^2 score units (0 = no prior).
@@ -540,7 +563,9 @@ class LikelihoodFieldMatcher(Matcher):
         voxel_m: float = _Field.voxel_m,
         max_gap_m: float = _Field.max_gap_m,
         isolated: str = _Field.isolated,
+        refine: str = _Field.refine,
     ) -> None:
+        self.gauss_newton = refine == "gauss_newton"
         self.voxel_m = float(voxel_m)
         self.max_gap_m = float(max_gap_m)
         self.stretches = isolated == "stretch"
@@ -563,10 +588,12 @@ class LikelihoodFieldMatcher(Matcher):
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
         evals = np.empty(len(poses), dtype=np.int64)
+        sigma, cap = self._field_cells(grid.res)
         field_search(
             grid.field, grid.origin[0], grid.origin[1], 1.0 / grid.res, np.ascontiguousarray(poses), coarse, fine,
             self.offsets, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
             self.kxy, self.kyaw, best, scores, evals, ext,
+            np.array([cap]) if self.gauss_newton else _CLIMB, sigma, 1.0 / sigma**2,
         )
         self._count_field_reads(len(poses), len(coarse), len(fine), evals, ext)
         return self._finish(poses, best, scores)
@@ -581,10 +608,23 @@ class LikelihoodFieldMatcher(Matcher):
         tiled_field_search(
             maps.pool_f, maps.field_lut, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, np.ascontiguousarray(poses), coarse, fine,
             self.offsets, shifts, yaws, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
-            self.kxy / prior_scale, self.kyaw / prior_scale, best, scores, evals, ext,
+            self.kxy / prior_scale, self.kyaw / prior_scale, best, scores, evals, ext, *self._distances(maps),
         )
         self._count_field_reads(len(poses), len(coarse), len(fine), evals, ext)
         return self._finish(poses, best, scores)
+
+    def _field_cells(self, res_m: float) -> tuple[float, float]:
+        """(sigma, radius + 1) of the field in cells of `res_m`: the distance a cell past the
+        field's radius stands for (`gauss_newton.distance_table`)."""
+        return self.field_sigma_m / res_m, field_radius_cells(self.field_sigma_m, self.field_radius_m, res_m) + 1.0
+
+    def _distances(self, maps: TiledMaps) -> tuple[np.ndarray, float]:
+        """`tiled_field_search`'s Gauss-Newton inputs: d (cells) per field code and 1 / sigma^2
+        (cells); no table when the hill climb refines."""
+        if not self.gauss_newton:
+            return _CLIMB, 0.0
+        sigma, cap = self._field_cells(maps.res)
+        return distance_table(maps.field_lut, sigma, cap - 1.0), 1.0 / sigma**2
 
     def _points(self, scan: ScanPoints) -> tuple[FloatArray, FloatArray, FloatArray]:
         """The scan points the coarse grid and the hill climb use (after `isolated_filter`

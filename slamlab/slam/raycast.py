@@ -114,6 +114,11 @@ def update_field(lo, field, thresh, kernel, r0, r1, c0, c1):
                             field[rr, cc] = v
 
 
+def field_radius_cells(sigma_m: float, radius_m: float, res_m: float) -> int:
+    """The likelihood field's kernel radius in cells: radius_m (at least sigma_m and one cell)."""
+    return max(int(np.ceil(max(radius_m, sigma_m) / res_m)), 1)
+
+
 def gaussian_kernel(sigma_cells: float, radius_cells: int) -> np.ndarray:
     """float32 [2R+1, 2R+1] with exp(-d^2 / (2 sigma^2)), d the distance in cells."""
     ax = np.arange(-radius_cells, radius_cells + 1, dtype=np.float64)

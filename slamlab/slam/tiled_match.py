@@ -18,7 +18,11 @@ import math
 import numba
 import numpy as np
 
+from slamlab.slam.gauss_newton import refine_pose
 from slamlab.slam.tiles import TILE_MASK, TILE_SHIFT
+
+
+_NO_FIELD = np.zeros((0, 0), dtype=np.float32)  # `refine_pose` reads tiles, not a dense field
 
 
 @numba.njit(cache=True, inline="always")
@@ -223,8 +227,9 @@ def _coarse_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, pts, offsets
 
 
 @numba.njit(cache=True)
-def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, ext):
-    """One particle: coarse grid, then hill climbing (see `matcher.field_search`). With
+def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, ext, lut_d, w_scale):
+    """One particle: coarse grid, then hill climbing (see `matcher.field_search`), or
+    Gauss-Newton steps when `lut_d` has rows (`gauss_newton.refine_pose`). With
     `shifts` (K, 3: rows, cols, yaw index; empty = no) the coarse grid reuses each yaw's
     point placement across its whole-cell x/y offsets (`_coarse_by_cells`)."""
     bx = px
@@ -247,6 +252,8 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
         bx += offsets[bk, 0]
         by += offsets[bk, 1]
         bt += offsets[bk, 2]
+    if lut_d.shape[0] > 0:  # refine: gauss_newton (steps of at most one coarse step)
+        return refine_pose(_NO_FIELD, pool_f, tab, lut, lut_d, 0.0, ox, oy, inv_res, px, py, pt, bx, by, bt, fine_pts, kxy, kyaw, w_scale, 2.0 * lin_step, 2.0 * ang_step)
     cur = _score_fine(pool_f, lut, tab, ox, oy, inv_res, bx, by, bt, fine_pts, ext)
     n_eval = 1
     cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
@@ -301,14 +308,16 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
 
 
 @numba.njit(cache=True, parallel=True)
-def tiled_field_search(pool_f, lut, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals, ext):
+def tiled_field_search(pool_f, lut, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals, ext, lut_d, w_scale):
     """Per particle i, coarse-to-fine likelihood-field matching on its own map `table[i]`;
-    `out_evals[i]`: the hill climb's scores of `fine_pts` (for the map-read count). `ext`:
-    the fine points' stretches (`matcher.surface_stretches`; no rows = none)."""
+    `out_evals[i]`: the refinement's scores of `fine_pts` (for the map-read count). `ext`:
+    the fine points' stretches (`matcher.surface_stretches`; no rows = none). `lut_d` (d in
+    cells per field code; empty = hill climb) and `w_scale` (1 / sigma^2, cells): the
+    Gauss-Newton refinement (`gauss_newton`) instead of the hill climb."""
     for i in numba.prange(poses.shape[0]):
         bx, by, bt, cur, n_eval = _climb(
             pool_f, lut, table[i], ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2],
-            coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, ext,
+            coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, ext, lut_d, w_scale,
         )
         out_poses[i, 0] = bx
         out_poses[i, 1] = by

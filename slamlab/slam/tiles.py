@@ -53,7 +53,7 @@ from slamlab.errors import ConfigError
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
 from slamlab.slam.grid import MapSettings
-from slamlab.slam.raycast import gaussian_kernel, line_step
+from slamlab.slam.raycast import field_radius_cells, gaussian_kernel, line_step
 
 TILE_SHIFT = 5
 TILE = 1 << TILE_SHIFT  # cells per tile side
@@ -502,7 +502,7 @@ class TiledMaps:
         self.kernel = np.zeros((1, 1), dtype=np.uint8)
         self.field_lut = np.zeros(1, dtype=np.float32)
         if self.has_field:
-            radius = max(int(np.ceil(max(field_radius_m, field_sigma_m) / self.res)), 1)
+            radius = field_radius_cells(field_sigma_m, field_radius_m, self.res)
             if radius + 1 >= (3 * TILE) // 4:
                 raise ConfigError("matcher.radius_m (or sigma_m)", f"must stay below {(3 * TILE) // 4 - 1} cells ({((3 * TILE) // 4 - 1) * self.res:g} m) at this resolution")
             self.kernel, self.field_lut = field_codes(gaussian_kernel(field_sigma_m / self.res, radius))
