@@ -185,7 +185,7 @@ class LikelihoodMatcherConfig:
     yaw_step_rad: float = 0.025  # ... in 0.025 rad steps
     coarse_beam_step: int = 3  # coarse grid uses every 3rd point
     beam_step: int = 1  # hill climb and score use every k-th point
-    refine_levels: int = 4  # hill-climb step halvings
+    refine_levels: int = 4  # hill-climb step halvings (refine=climb)
     prior_sigma_xy_m: float = 0.05  # motion prior: an offset d from the prediction costs 0.5 (d/sigma)^2 (0 = off);
     prior_sigma_yaw_rad: float = 0.1  # keeps long corridors (ACES) from sliding, leaves room for Intel's poor yaw
     move_to_best: bool = True
@@ -196,14 +196,14 @@ class LikelihoodMatcherConfig:
     isolated: str = "drop"  # the lone points max_gap_m singles out: `drop` them, or match those on a line as a
     # `stretch` of surface in the hill climb (`surface_stretches`): their across-wall position without the comb
     refine: str = "climb"  # after the coarse grid: `climb` (hill climbing, refine_levels halvings) or `gauss_newton`
-    # (damped Gauss-Newton steps on the same score, slam/gauss_newton.py: ~7x fewer scores on Intel)
+    # (damped Gauss-Newton steps on the same score, slam/gauss_newton.py: ~7x fewer scores on Intel; refine_levels unused)
 
     def __post_init__(self) -> None:
         g = self.GROUP
         require_choice(g, "isolated", self.isolated, ("drop", "stretch"))
         require_choice(g, "refine", self.refine, ("climb", "gauss_newton"))
         if self.refine == "gauss_newton" and self.isolated == "stretch":
-            raise ConfigError(f"{g}.refine", "gauss_newton scores every point at its place; isolated=stretch needs refine=climb")
+            raise ConfigError(f"{g}.refine", "gauss_newton does not support isolated=stretch (a stretch's score, the best of its samples, has no gradient); use refine=climb or isolated=drop")
         if self.isolated == "stretch" and not self.max_gap_m > 0:
             raise ConfigError(f"{g}.isolated", "stretch needs matcher.max_gap_m > 0 (the gap that makes a scan point a lone hit)")
         require_nonnegative(g, "prior_sigma_xy_m", self.prior_sigma_xy_m)

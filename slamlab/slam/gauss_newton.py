@@ -34,11 +34,12 @@ _DAMP_SHRINK = 0.3
 _DAMP_MAX = 1e4
 
 
-def distance_table(lut: np.ndarray, sigma_cells: float, radius_cells: float) -> np.ndarray:
+def distance_table(lut: np.ndarray, sigma_cells: float, cap_cells: float) -> np.ndarray:
     """d (cells) for each field value of `lut`: f = exp(-d^2 / 2 sigma^2), so d = sigma
-    sqrt(-2 ln f); a zero (beyond the field's radius, or unknown) reads as radius + 1."""
+    sqrt(-2 ln f); a zero (beyond the field's radius, or unknown) reads as `cap_cells` (the
+    matcher passes the radius + 1: just past the last non-zero value)."""
     f = np.asarray(lut, dtype=np.float64)
-    d = np.full(f.shape, float(radius_cells) + 1.0)
+    d = np.full(f.shape, float(cap_cells))
     pos = f > 0
     d[pos] = sigma_cells * np.sqrt(np.maximum(-2.0 * np.log(f[pos]), 0.0))
     return d
@@ -97,7 +98,7 @@ def step(g, h, ex, ey, et, kxy, kyaw, damping, max_xy, max_yaw):
     dy = -(c01 * a0 + c11 * a1 + c12 * a2) / det
     dt = -(c02 * a0 + c12 * a1 + c22 * a2) / det
     m = max(abs(dx) / max_xy, abs(dy) / max_xy, abs(dt) / max_yaw)
-    if m > 1.0:  # the field's gradient is local: go at most a cell (and a coarse yaw step)
+    if m > 1.0:  # the field's gradient is local: go at most one coarse step (x, y and yaw)
         dx /= m
         dy /= m
         dt /= m
@@ -121,7 +122,7 @@ def converged(dx, dy, dt):
 @numba.njit(cache=True, inline="always")
 def _distance(f, sigma_cells, cap):
     """d (cells) of a dense field value: as `distance_table`."""
-    return sigma_cells * math.sqrt(max(-2.0 * math.log(f), 0.0)) if f > 0.0 else cap
+    return sigma_cells * math.sqrt(max(-2.0 * math.log(float(f)), 0.0)) if f > 0.0 else cap  # float64 log, as the table
 
 
 @numba.njit(cache=True)
@@ -141,10 +142,12 @@ def field_gradient(field, pool_f, tab, lut, lut_d, sigma_cells, ox, oy, inv_res,
     h[:] = 0.0
     total = 0.0
     for i in range(pts.shape[0]):
-        rx = c * pts[i, 0] - s * pts[i, 1]
-        ry = s * pts[i, 0] + c * pts[i, 1]
-        u = (x + rx - ox) * inv_res - 0.5
-        v = (y + ry - oy) * inv_res - 0.5
+        wx = x + c * pts[i, 0] - s * pts[i, 1]  # placed as `score_field` places it (the same sums)
+        wy = y + s * pts[i, 0] + c * pts[i, 1]
+        rx = wx - x  # the point's offset from the body: a yaw change moves it by (-ry, rx)
+        ry = wy - y
+        u = (wx - ox) * inv_res - 0.5
+        v = (wy - oy) * inv_res - 0.5
         c0 = int(math.floor(u))
         r0 = int(math.floor(v))
         if c0 < 0 or r0 < 0 or c0 + 1 >= W or r0 + 1 >= H:
@@ -190,6 +193,8 @@ def refine_pose(field, pool_f, tab, lut, lut_d, sigma_cells, ox, oy, inv_res, px
     damping = 0.0
     for _ in range(MAX_ITERATIONS):
         dx, dy, dt = step(g, h, bx - px, by - py, bt - pt, kxy, kyaw, damping, max_xy, max_yaw)
+        if dx == 0.0 and dy == 0.0 and dt == 0.0:  # singular curvature or no gradient: nowhere to go
+            break
         cx = bx + dx
         cy = by + dy
         ct = bt + dt

@@ -534,7 +534,8 @@ class LikelihoodFieldMatcher(Matcher):
     - beam_step: points used by the hill climb and the score (every k-th).
     - refine: what follows the coarse grid: `climb` (hill climbing: +-x, +-y, +-yaw moves,
       `refine_levels` step halvings starting from half the coarse steps) or `gauss_newton`
-      (damped Gauss-Newton steps on the same score, `gauss_newton.py`: ~7x fewer scores).
+      (damped Gauss-Newton steps on the same score, `gauss_newton.py`: ~7x fewer scores;
+      `refine_levels` is then unused).
     - refine_levels: step halvings of the hill climb, starting from half the coarse steps.
     - prior_sigma_xy_m / prior_sigma_yaw_rad: motion prior; a pose offset d from the
       prediction costs 0.5 (d / sigma)^2 score units (0 = no prior).
@@ -624,7 +625,7 @@ class LikelihoodFieldMatcher(Matcher):
         if not self.gauss_newton:
             return _CLIMB, 0.0
         sigma, cap = self._field_cells(maps.res)
-        return distance_table(maps.field_lut, sigma, cap - 1.0), 1.0 / sigma**2
+        return distance_table(maps.field_lut, sigma, cap), 1.0 / sigma**2
 
     def _points(self, scan: ScanPoints) -> tuple[FloatArray, FloatArray, FloatArray]:
         """The scan points the coarse grid and the hill climb use (after `isolated_filter`
