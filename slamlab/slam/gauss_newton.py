@@ -24,6 +24,7 @@ import math
 import numba
 import numpy as np
 
+from slamlab.slam.raycast import field_place
 from slamlab.slam.tiles import TILE_MASK, TILE_SHIFT
 
 MAX_ITERATIONS = 12  # scores per particle at most (13 with the start)
@@ -142,12 +143,9 @@ def field_gradient(field, pool_f, tab, lut, lut_d, sigma_cells, ox, oy, inv_res,
     h[:] = 0.0
     total = 0.0
     for i in range(pts.shape[0]):
-        wx = x + c * pts[i, 0] - s * pts[i, 1]  # placed as `score_field` places it (the same sums)
-        wy = y + s * pts[i, 0] + c * pts[i, 1]
+        wx, wy, u, v = field_place(x, y, c, s, pts[i, 0], pts[i, 1], ox, oy, inv_res)  # as `score_field`: the same sums
         rx = wx - x  # the point's offset from the body: a yaw change moves it by (-ry, rx)
         ry = wy - y
-        u = (wx - ox) * inv_res - 0.5
-        v = (wy - oy) * inv_res - 0.5
         c0 = int(math.floor(u))
         r0 = int(math.floor(v))
         if c0 < 0 or r0 < 0 or c0 + 1 >= W or r0 + 1 >= H:

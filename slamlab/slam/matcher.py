@@ -32,7 +32,7 @@ from slamlab.geometry import FloatArray, wrap_angle
 from slamlab.slam.grid import OccupancyGrid
 from slamlab.slam.scan import ScanPoints
 from slamlab.slam.gauss_newton import distance_table, refine_pose
-from slamlab.slam.raycast import field_radius_cells
+from slamlab.slam.raycast import field_place, field_radius_cells
 from slamlab.slam.tiled_match import tiled_field_search, tiled_grid_search
 from slamlab.slam.tiles import TILE, TiledMaps
 
@@ -68,10 +68,7 @@ def score_field(field, ox, oy, inv_res, x, y, th, pts):
     s = math.sin(th)
     total = 0.0
     for i in range(pts.shape[0]):
-        wx = x + c * pts[i, 0] - s * pts[i, 1]
-        wy = y + s * pts[i, 0] + c * pts[i, 1]
-        u = (wx - ox) * inv_res - 0.5
-        v = (wy - oy) * inv_res - 0.5
+        _, _, u, v = field_place(x, y, c, s, pts[i, 0], pts[i, 1], ox, oy, inv_res)
         c0 = int(math.floor(u))
         r0 = int(math.floor(v))
         if c0 < 0 or r0 < 0 or c0 + 1 >= W or r0 + 1 >= H:

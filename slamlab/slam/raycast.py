@@ -114,6 +114,17 @@ def update_field(lo, field, thresh, kernel, r0, r1, c0, c1):
                             field[rr, cc] = v
 
 
+@numba.njit(cache=True, inline="always")
+def field_place(x, y, c, s, px, py, ox, oy, inv_res):
+    """A body point (px, py, m) with the body at (x, y) and yaw (c, s) = (cos, sin): its world
+    position (wx, wy) and its place (u, v) on a map of origin (ox, oy), in cells with the
+    cell centres at integers (where a bilinear field read starts). Every field reader places
+    points this one way, so their sums agree to the bit."""
+    wx = x + c * px - s * py
+    wy = y + s * px + c * py
+    return wx, wy, (wx - ox) * inv_res - 0.5, (wy - oy) * inv_res - 0.5
+
+
 def field_radius_cells(sigma_m: float, radius_m: float, res_m: float) -> int:
     """The likelihood field's kernel radius in cells: radius_m (at least sigma_m and one cell)."""
     return max(int(np.ceil(max(radius_m, sigma_m) / res_m)), 1)

@@ -19,6 +19,7 @@ import numba
 import numpy as np
 
 from slamlab.slam.gauss_newton import refine_pose
+from slamlab.slam.raycast import field_place
 from slamlab.slam.tiles import TILE_MASK, TILE_SHIFT
 
 
@@ -58,10 +59,7 @@ def tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts):
     s = math.sin(th)
     total = 0.0
     for i in range(pts.shape[0]):
-        wx = x + c * pts[i, 0] - s * pts[i, 1]
-        wy = y + s * pts[i, 0] + c * pts[i, 1]
-        u = (wx - ox) * inv_res - 0.5
-        v = (wy - oy) * inv_res - 0.5
+        _, _, u, v = field_place(x, y, c, s, pts[i, 0], pts[i, 1], ox, oy, inv_res)
         c0 = int(math.floor(u))
         r0 = int(math.floor(v))
         if c0 < 0 or r0 < 0 or c0 + 1 >= W or r0 + 1 >= H:
