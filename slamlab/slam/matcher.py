@@ -29,10 +29,10 @@ from slamlab.config.slam import GridMatcherConfig as _Grid
 from slamlab.config.slam import LikelihoodMatcherConfig as _Field
 from slamlab.errors import ConfigError
 from slamlab.geometry import FloatArray, wrap_angle
-from slamlab.slam.grid import OccupancyGrid
-from slamlab.slam.scan import ScanPoints
 from slamlab.slam.gauss_newton import distance_table, refine_pose
+from slamlab.slam.grid import OccupancyGrid
 from slamlab.slam.raycast import field_place, field_radius_cells
+from slamlab.slam.scan import ScanPoints
 from slamlab.slam.tiled_match import tiled_field_search, tiled_grid_search
 from slamlab.slam.tiles import TILE, TiledMaps
 
@@ -41,6 +41,7 @@ _NO_POOL = np.zeros((0, TILE, TILE), dtype=np.uint8)
 _NO_TABLE = np.zeros((0, 0), dtype=np.int32)
 _NO_LUT = np.zeros(0, dtype=np.float32)
 _CLIMB = np.zeros(0)  # no distance table: `field_search` / `tiled_field_search` hill-climb
+
 
 @numba.njit(cache=True)
 def score_hits(lo, thresh, ox, oy, inv_res, x, y, th, pts):
