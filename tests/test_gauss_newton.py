@@ -5,9 +5,9 @@ field (filter=course) and a particle's tiles (filter=rbpf) alike."""
 
 import numpy as np
 
-from slamlab.slam.gauss_newton import distance_table, field_gradient
+from slamlab.slam.gauss_newton import NO_LUT, NO_POOL, NO_TABLE, distance_table, field_gradient
 from slamlab.slam.grid import MapSettings, OccupancyGrid
-from slamlab.slam.matcher import _NO_LUT, _NO_POOL, _NO_TABLE, LikelihoodFieldMatcher, score_field
+from slamlab.slam.matcher import LikelihoodFieldMatcher, score_field
 from slamlab.slam.scan import ScanPoints
 from slamlab.slam.tiles import TiledMaps
 
@@ -62,7 +62,7 @@ def test_the_gradient_is_the_scores_derivative():
     rng = np.random.default_rng(4)
     for x, y, th in rng.normal(0.0, [0.06, 0.06, 0.03], (5, 3)):
         g, h = np.empty(3), np.empty(6)
-        s = field_gradient(grid.field, _NO_POOL, _NO_TABLE, _NO_LUT, cap, sigma, grid.origin[0], grid.origin[1], 1.0 / grid.res, x, y, th, pts, 1 / sigma**2, g, h)
+        s = field_gradient(grid.field, NO_POOL, NO_TABLE, NO_LUT, cap, sigma, grid.origin[0], grid.origin[1], 1.0 / grid.res, x, y, th, pts, 1 / sigma**2, g, h)
 
         def score(dx, dy, dt):
             return score_field(grid.field, grid.origin[0], grid.origin[1], 1.0 / grid.res, x + dx, y + dy, th + dt, pts)

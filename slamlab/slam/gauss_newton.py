@@ -25,7 +25,13 @@ import numba
 import numpy as np
 
 from slamlab.slam.raycast import field_place
-from slamlab.slam.tiles import TILE_MASK, TILE_SHIFT
+from slamlab.slam.tiles import TILE, TILE_MASK, TILE_SHIFT
+
+# `refine_pose` reads a dense field or tiles: the one it does not read is passed empty
+NO_FIELD = np.zeros((0, 0), dtype=np.float32)
+NO_POOL = np.zeros((0, TILE, TILE), dtype=np.uint8)
+NO_TABLE = np.zeros((0, 0), dtype=np.int32)
+NO_LUT = np.zeros(0, dtype=np.float32)
 
 MAX_ITERATIONS = 12  # scores per particle at most (13 with the start)
 TOLERANCE = 5e-4  # stop once a kept step moves less than this in x and y (m) and yaw (rad)

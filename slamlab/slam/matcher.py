@@ -29,17 +29,13 @@ from slamlab.config.slam import GridMatcherConfig as _Grid
 from slamlab.config.slam import LikelihoodMatcherConfig as _Field
 from slamlab.errors import ConfigError
 from slamlab.geometry import FloatArray, wrap_angle
-from slamlab.slam.gauss_newton import distance_table, refine_pose
+from slamlab.slam.gauss_newton import NO_LUT, NO_POOL, NO_TABLE, distance_table, refine_pose
 from slamlab.slam.grid import OccupancyGrid
 from slamlab.slam.raycast import field_place, field_radius_cells
 from slamlab.slam.scan import ScanPoints
 from slamlab.slam.tiled_match import tiled_field_search, tiled_grid_search
-from slamlab.slam.tiles import TILE, TiledMaps
+from slamlab.slam.tiles import TiledMaps
 
-# `refine_pose` on a dense field reads no tiles
-_NO_POOL = np.zeros((0, TILE, TILE), dtype=np.uint8)
-_NO_TABLE = np.zeros((0, 0), dtype=np.int32)
-_NO_LUT = np.zeros(0, dtype=np.float32)
 _CLIMB = np.zeros(0)  # no distance table: `field_search` / `tiled_field_search` hill-climb
 
 
@@ -244,7 +240,7 @@ def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, l
             bt += offsets[bk, 2]
         if lut_d.shape[0] > 0:
             bx, by, bt, cur, n_eval = refine_pose(
-                field, _NO_POOL, _NO_TABLE, _NO_LUT, lut_d, sigma_cells, ox, oy, inv_res, px, py, pt, bx, by, bt, fine_pts, kxy, kyaw, w_scale, 2.0 * lin_step, 2.0 * ang_step,
+                field, NO_POOL, NO_TABLE, NO_LUT, lut_d, sigma_cells, ox, oy, inv_res, px, py, pt, bx, by, bt, fine_pts, kxy, kyaw, w_scale, 2.0 * lin_step, 2.0 * ang_step,
             )
             out_poses[i, 0] = bx
             out_poses[i, 1] = by
@@ -587,12 +583,10 @@ class LikelihoodFieldMatcher(Matcher):
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
         evals = np.empty(len(poses), dtype=np.int64)
-        sigma, cap = self._field_cells(grid.res)
         field_search(
             grid.field, grid.origin[0], grid.origin[1], 1.0 / grid.res, np.ascontiguousarray(poses), coarse, fine,
             self.offsets, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
-            self.kxy, self.kyaw, best, scores, evals, ext,
-            np.array([cap]) if self.gauss_newton else _CLIMB, sigma, 1.0 / sigma**2,
+            self.kxy, self.kyaw, best, scores, evals, ext, *self._refinement(grid.res),
         )
         self._count_field_reads(len(poses), len(coarse), len(fine), evals, ext)
         return self._finish(poses, best, scores)
@@ -604,26 +598,30 @@ class LikelihoodFieldMatcher(Matcher):
         scores = np.empty(len(poses))
         evals = np.empty(len(poses), dtype=np.int64)
         shifts, _, yaws = self._cell_shifts(maps.res)
+        lut_d, _, w_scale = self._refinement(maps.res, maps.field_lut)
         tiled_field_search(
             maps.pool_f, maps.field_lut, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, np.ascontiguousarray(poses), coarse, fine,
             self.offsets, shifts, yaws, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
-            self.kxy / prior_scale, self.kyaw / prior_scale, best, scores, evals, ext, *self._distances(maps),
+            self.kxy / prior_scale, self.kyaw / prior_scale, best, scores, evals, ext, lut_d, w_scale,
         )
         self._count_field_reads(len(poses), len(coarse), len(fine), evals, ext)
         return self._finish(poses, best, scores)
 
-    def _field_cells(self, res_m: float) -> tuple[float, float]:
-        """(sigma, radius + 1) of the field in cells of `res_m`: the distance a cell past the
-        field's radius stands for (`gauss_newton.distance_table`)."""
-        return self.field_sigma_m / res_m, field_radius_cells(self.field_sigma_m, self.field_radius_m, res_m) + 1.0
-
-    def _distances(self, maps: TiledMaps) -> tuple[np.ndarray, float]:
-        """`tiled_field_search`'s Gauss-Newton inputs: d (cells) per field code and 1 / sigma^2
-        (cells); no table when the hill climb refines."""
+    def _refinement(self, res_m: float, lut: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
+        """The kernels' Gauss-Newton inputs (`gauss_newton.refine_pose`) for a map of `res_m`:
+        (d in cells per field code of `lut`, or [radius + 1] for a dense field; sigma in cells;
+        1 / sigma^2). No table when the hill climb refines. Made once per map (`match` runs at
+        every step)."""
         if not self.gauss_newton:
-            return _CLIMB, 0.0
-        sigma, cap = self._field_cells(maps.res)
-        return distance_table(maps.field_lut, sigma, cap), 1.0 / sigma**2
+            return _CLIMB, 0.0, 0.0
+        cache = self.__dict__.setdefault("_refinement_by_map", {})
+        key = (res_m, None if lut is None else lut.tobytes())
+        if key not in cache:
+            sigma = self.field_sigma_m / res_m
+            cap = field_radius_cells(self.field_sigma_m, self.field_radius_m, res_m) + 1.0  # a cell past the radius
+            table = np.array([cap]) if lut is None else distance_table(lut, sigma, cap)
+            cache[key] = (table, sigma, 1.0 / sigma**2)
+        return cache[key]
 
     def _points(self, scan: ScanPoints) -> tuple[FloatArray, FloatArray, FloatArray]:
         """The scan points the coarse grid and the hill climb use (after `isolated_filter`

@@ -18,12 +18,9 @@ import math
 import numba
 import numpy as np
 
-from slamlab.slam.gauss_newton import refine_pose
+from slamlab.slam.gauss_newton import NO_FIELD, refine_pose
 from slamlab.slam.raycast import field_place
 from slamlab.slam.tiles import TILE_MASK, TILE_SHIFT
-
-
-_NO_FIELD = np.zeros((0, 0), dtype=np.float32)  # `refine_pose` reads tiles, not a dense field
 
 
 @numba.njit(cache=True, inline="always")
@@ -251,7 +248,7 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
         by += offsets[bk, 1]
         bt += offsets[bk, 2]
     if lut_d.shape[0] > 0:  # refine: gauss_newton (steps of at most one coarse step)
-        return refine_pose(_NO_FIELD, pool_f, tab, lut, lut_d, 0.0, ox, oy, inv_res, px, py, pt, bx, by, bt, fine_pts, kxy, kyaw, w_scale, 2.0 * lin_step, 2.0 * ang_step)
+        return refine_pose(NO_FIELD, pool_f, tab, lut, lut_d, 0.0, ox, oy, inv_res, px, py, pt, bx, by, bt, fine_pts, kxy, kyaw, w_scale, 2.0 * lin_step, 2.0 * ang_step)
     cur = _score_fine(pool_f, lut, tab, ox, oy, inv_res, bx, by, bt, fine_pts, ext)
     n_eval = 1
     cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
