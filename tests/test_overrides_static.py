@@ -8,7 +8,7 @@ import pytest
 from hydra import compose, initialize_config_module
 from omegaconf import OmegaConf
 
-from slamlab.cli.overrides import PRESET_GROUP, _dotted_keys, check_overrides, config_groups, static_keys
+from slamlab.cli.overrides import PRESET_GROUP, _dotted_keys, check_overrides, config_groups, hydra_mode_unset, static_keys
 
 GROUPS = config_groups()
 CASES = (
@@ -31,7 +31,35 @@ def test_static_keys_are_the_composed_keys(choices):
     static = static_keys(choices)
     # the shipped files are all readable (None, "unsure", would only make the check slower)
     assert static is not None
-    assert static == composed_keys(choices)
+    assert {k for k in static if k != "hydra.mode"} == composed_keys(choices)
+
+
+@pytest.mark.parametrize("choices", CASES, ids=lambda c: " ".join(c) or "defaults")
+def test_static_keys_know_which_presets_set_hydras_mode(choices):
+    # Hydra's run mode (a job or a sweep) comes from the config when a file sets it: the
+    # fast path must see exactly those files (experiment=ladder), or a sweep preset would run once
+    with initialize_config_module(config_module="slamlab.conf", version_base="1.3"):
+        cfg = compose(config_name="config", overrides=choices, return_hydra_config=True)
+    assert ("hydra.mode" in static_keys(choices)) == (cfg.hydra.mode is not None)
+
+
+@pytest.mark.parametrize(
+    "argv, unset",
+    [
+        (["+experiment=lidar2d", "dataset.path=/x.clf", "steps.max_scans=1"], True),
+        (["+experiment=intel"], True),  # includes lidar2d, which sets no mode
+        (["-m", "particles=10,30", "filter=course,rbpf"], True),
+        ([], True),
+        (["+experiment=ladder"], False),  # a sweep preset: hydra.mode=MULTIRUN
+        (["-m", "+experiment=lidar2d,ladder"], False),  # any value of a swept group counts
+        (["hydra.mode=MULTIRUN"], False),
+        (["--config-path", "/run/.hydra", "--config-name", "config"], False),  # a saved config: not ours to read
+        (["+experiment=glob(*)"], False),  # Hydra's sweep syntax: unsure
+        (["~matcher"], False),
+    ],
+)
+def test_hydras_mode_compose_is_skipped_only_when_no_config_sets_the_mode(argv, unset):
+    assert hydra_mode_unset(argv) is unset
 
 
 def test_the_lidar2d_command_line_is_checked_without_composing(monkeypatch):

@@ -13,6 +13,7 @@ module is sure of are reported; anything else is left to Hydra's own messages.
 from __future__ import annotations
 
 import difflib
+import functools
 from importlib import resources
 
 # Options that point Hydra at another config (slamlab-verify's re-run): not our groups and keys.
@@ -161,9 +162,15 @@ def _type_mistake(group_choices: list[str], values_set: list[tuple[str, object]]
 # composing too, so every message comes from the composed config.
 
 
-def static_keys(group_choices: list[str]) -> set[str] | None:
+def static_keys(group_choices: list[str]) -> frozenset[str] | None:
     """The dotted keys of the config that `group_choices` (e.g. ["+experiment=lidar2d",
-    "dataset=carmen"]) compose to, read from the YAML files; None when unsure."""
+    "dataset=carmen"]) compose to, read from the YAML files; None when unsure. Remembered
+    per process: `check_overrides` and `hydra_mode_unset` ask for the same choices."""
+    return _static_keys(tuple(group_choices))
+
+
+@functools.lru_cache(maxsize=16)
+def _static_keys(group_choices: tuple[str, ...]) -> frozenset[str] | None:
     import yaml
 
     root = resources.files("slamlab.conf")
@@ -185,7 +192,7 @@ def static_keys(group_choices: list[str]) -> set[str] | None:
             elif entry != "_self_":
                 return None
         cli = dict(c.lstrip("+").split("=", 1) for c in group_choices)
-        keys |= set(_dotted_keys({k: v for k, v in base.items() if k not in ("defaults", "hydra")}))
+        keys |= set(_dotted_keys({k: v for k, v in base.items() if k not in ("defaults", "hydra")})) | _hydra_mode(base)
         preset = cli.pop(PRESET_GROUP, None)
         if preset is not None:
             preset_keys = _preset(root, preset, choices, yaml, depth=0)
@@ -206,7 +213,7 @@ def static_keys(group_choices: list[str]) -> set[str] | None:
                     return None
                 keys.update(f"{group}.{k}" for k in _schema_keys(schema))
             keys.update(f"{group}.{k}" for k in _dotted_keys(data))
-        return keys
+        return frozenset(keys)
     except (OSError, ValueError, TypeError, AttributeError, yaml.YAMLError):
         return None
 
@@ -257,7 +264,50 @@ def _preset(root, name: str, choices: dict[str, str], yaml, depth: int) -> set[s
         elif entry != "_self_":
             return None
     keys.update(_dotted_keys({k: v for k, v in data.items() if k not in ("defaults", "hydra")}))
-    return keys
+    return keys | _hydra_mode(data)
+
+
+def _hydra_mode(data: dict) -> set[str]:
+    """{"hydra.mode"} when a config file sets Hydra's run mode (a preset that is a sweep,
+    e.g. experiment=ladder), else nothing: Hydra's own keys are not slamlab's, but this one
+    decides whether Hydra runs a job or a sweep (`hydra_mode_unset`)."""
+    hydra = data.get("hydra")
+    return {"hydra.mode"} if isinstance(hydra, dict) and "mode" in hydra else set()
+
+
+def hydra_mode_unset(argv: list[str]) -> bool:
+    """True when no config file the command line composes sets `hydra.mode` and no override
+    does (read from the YAML files as `static_keys` does); False when one does or when this
+    reading is unsure (a config from elsewhere, a deletion, a sweep syntax other than a
+    comma list). Hydra composes the whole config once only to learn that mode
+    (`Hydra.get_mode`, 0.2-0.3 s of CPU, before it composes it again to run); when nothing
+    sets it the answer is None, and the command line's `-m` alone decides."""
+    groups = config_groups()
+    choices: dict[str, list[str]] = {}
+    for arg in argv:
+        if arg.split("=", 1)[0] in FOREIGN_CONFIG_FLAGS:
+            return False
+        if arg.startswith("~"):
+            return False  # a deletion: what is left is Hydra's to say
+        if arg.startswith("-") or "=" not in arg:
+            continue  # -m, --multirun, a positional Hydra would refuse
+        key, value = arg.split("=", 1)
+        name = key.lstrip("+")
+        if "@" in name:
+            return False
+        if name == "hydra" or name.startswith("hydra.mode") or name.startswith("hydra/"):
+            return False
+        if name in groups:
+            if not value or any(ch in value for ch in "[](){}$*'\"\\"):
+                return False  # glob(), range(), quoting: Hydra's parser, not this one
+            choices[f"+{name}" if key.startswith("+") else name] = value.split(",")
+    first = {k: v[0] for k, v in choices.items()}
+    combos = [first] + [{**first, key: value} for key, values in choices.items() for value in values[1:]]
+    for combo in combos:  # every value of a swept group, the other groups at their first
+        static = static_keys([f"{k}={v}" for k, v in combo.items()])
+        if static is None or "hydra.mode" in static:
+            return False
+    return True
 
 
 def _read_yaml(path, yaml) -> dict | None:
