@@ -25,7 +25,7 @@ import numba
 import numpy as np
 
 from slamlab.slam.raycast import field_place
-from slamlab.slam.tiles import TILE, TILE_MASK, TILE_SHIFT
+from slamlab.slam.tiles import TILE, TILE_SHIFT, tile_cell
 
 # `refine_pose` reads a dense field or tiles: the one it does not read is passed empty
 NO_FIELD = np.zeros((0, 0), dtype=np.float32)
@@ -166,10 +166,10 @@ def field_gradient(field, pool_f, tab, lut, lut_d, sigma_cells, ox, oy, inv_res,
             d10 = _distance(f10, sigma_cells, cap)
             d11 = _distance(f11, sigma_cells, cap)
         else:
-            a00 = pool_f[tab[r0 >> TILE_SHIFT, c0 >> TILE_SHIFT], r0 & TILE_MASK, c0 & TILE_MASK]
-            a01 = pool_f[tab[r0 >> TILE_SHIFT, (c0 + 1) >> TILE_SHIFT], r0 & TILE_MASK, (c0 + 1) & TILE_MASK]
-            a10 = pool_f[tab[(r0 + 1) >> TILE_SHIFT, c0 >> TILE_SHIFT], (r0 + 1) & TILE_MASK, c0 & TILE_MASK]
-            a11 = pool_f[tab[(r0 + 1) >> TILE_SHIFT, (c0 + 1) >> TILE_SHIFT], (r0 + 1) & TILE_MASK, (c0 + 1) & TILE_MASK]
+            a00 = tile_cell(pool_f, tab, r0, c0)
+            a01 = tile_cell(pool_f, tab, r0, c0 + 1)
+            a10 = tile_cell(pool_f, tab, r0 + 1, c0)
+            a11 = tile_cell(pool_f, tab, r0 + 1, c0 + 1)
             f00 = lut[a00]
             f01 = lut[a01]
             f10 = lut[a10]

@@ -20,12 +20,7 @@ import numpy as np
 
 from slamlab.slam.gauss_newton import NO_FIELD, refine_pose
 from slamlab.slam.raycast import field_place
-from slamlab.slam.tiles import TILE_MASK, TILE_SHIFT
-
-
-@numba.njit(cache=True, inline="always")
-def _cell(pool, tab, r, c):
-    return pool[tab[r >> TILE_SHIFT, c >> TILE_SHIFT], r & TILE_MASK, c & TILE_MASK]
+from slamlab.slam.tiles import TILE_MASK, TILE_SHIFT, tile_cell
 
 
 @numba.njit(cache=True)
@@ -42,7 +37,7 @@ def tiled_score_hits(pool_lo, tab, thresh, ox, oy, inv_res, x, y, th, pts):
         wy = y + s * pts[i, 0] + c * pts[i, 1]
         col = int(math.floor((wx - ox) * inv_res))
         row = int(math.floor((wy - oy) * inv_res))
-        if 0 <= row < H and 0 <= col < W and _cell(pool_lo, tab, row, col) > thresh:
+        if 0 <= row < H and 0 <= col < W and tile_cell(pool_lo, tab, row, col) > thresh:
             total += 1.0
     return total
 
@@ -72,10 +67,10 @@ def tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts):
             f10 = lut[pool_f[t, ir + 1, ic]]
             f11 = lut[pool_f[t, ir + 1, ic + 1]]
         else:
-            f00 = lut[_cell(pool_f, tab, r0, c0)]
-            f01 = lut[_cell(pool_f, tab, r0, c0 + 1)]
-            f10 = lut[_cell(pool_f, tab, r0 + 1, c0)]
-            f11 = lut[_cell(pool_f, tab, r0 + 1, c0 + 1)]
+            f00 = lut[tile_cell(pool_f, tab, r0, c0)]
+            f01 = lut[tile_cell(pool_f, tab, r0, c0 + 1)]
+            f10 = lut[tile_cell(pool_f, tab, r0 + 1, c0)]
+            f11 = lut[tile_cell(pool_f, tab, r0 + 1, c0 + 1)]
         total += (1.0 - fv) * ((1.0 - fu) * f00 + fu * f01) + fv * ((1.0 - fu) * f10 + fu * f11)
     return total
 
@@ -89,10 +84,10 @@ def _field_at(pool_f, lut, tab, H, W, u, v):
         return 0.0
     fu = u - c0
     fv = v - r0
-    f00 = lut[_cell(pool_f, tab, r0, c0)]
-    f01 = lut[_cell(pool_f, tab, r0, c0 + 1)]
-    f10 = lut[_cell(pool_f, tab, r0 + 1, c0)]
-    f11 = lut[_cell(pool_f, tab, r0 + 1, c0 + 1)]
+    f00 = lut[tile_cell(pool_f, tab, r0, c0)]
+    f01 = lut[tile_cell(pool_f, tab, r0, c0 + 1)]
+    f10 = lut[tile_cell(pool_f, tab, r0 + 1, c0)]
+    f11 = lut[tile_cell(pool_f, tab, r0 + 1, c0 + 1)]
     return (1.0 - fv) * ((1.0 - fu) * f00 + fu * f01) + fv * ((1.0 - fu) * f10 + fu * f11)
 
 
@@ -186,7 +181,7 @@ def coarse_scores_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, pts, s
                 for dc in range(nx + 1):
                     cc = c0 + dc
                     if inside or (0 <= r < H and 0 <= cc < W):
-                        win[dr, dc] = lut[_cell(pool_f, tab, r, cc)]
+                        win[dr, dc] = lut[tile_cell(pool_f, tab, r, cc)]
                     else:
                         win[dr, dc] = 0.0
                 for dc in range(nx):

@@ -62,6 +62,13 @@ EMPTY = 0  # pool index of the shared all-zero tile
 
 
 @numba.njit(cache=True, inline="always")
+def tile_cell(pool, tab, r, c):
+    """Cell (r, c) of the map whose tile table is `tab` (one particle's): a read through
+    the table into `pool` (tiles, TILE, TILE)."""
+    return pool[tab[r >> TILE_SHIFT, c >> TILE_SHIFT], r & TILE_MASK, c & TILE_MASK]
+
+
+@numba.njit(cache=True, inline="always")
 def _owned(ref, t):
     """Whether pool tile t belongs to one particle alone (writable in place): never the
     shared empty tile."""
