@@ -8,6 +8,10 @@ world `+experiment=sim_loops`, and the budgets, as tables.
   mean translational relation error of the causal (online) estimate and of the smoothed
   path, and the causal error of local and loop relations apart (a loop relation spans 30 s
   or more: a revisit). Budget: worst run <= 0.030 m (Intel), <= 0.050 m (ACES).
+  `online_off_first_m` / `online_off_return_m`: the mean distance between the online and the
+  smoothed position at the loop relations' first visits and at the returns. A large first
+  and small return offset: the online error is the spread of hypotheses before the loop
+  closed, which only the return resolves (no causal estimate can undo it).
 - sim_loops: the preset's filter on seeds 0-2 (budget: worst ATE RMSE <= 0.10 m), a
   `particles` sweep (10, 30; the preset is 100) with filter=rbpf, and filter=course beside it.
 - hospital: the Freiburg hospital log (fr-clinic, no relations) with the same preset, alone:
@@ -91,6 +95,10 @@ def lidar2d(out: Path, n_jobs: int, seeds: range, steps: tuple[float, ...] = (PR
                      "causal_loop_m": causal.get("loop", {}).get("trans_abs_mean_m", float("nan")),
                      "smoothed_m": rel.get("trans_abs_mean_m", float("nan")),
                      "smoothed_loop_m": rel.get("loop", {}).get("trans_abs_mean_m", float("nan")),
+                     # online minus smoothed position at the loop relations' first and second visits
+                     # (eval.relations.loop_end_offsets): before the loop closed, or at the return
+                     "online_off_first_m": causal.get("loop_offsets", {}).get("start_m", float("nan")),
+                     "online_off_return_m": causal.get("loop_offsets", {}).get("end_m", float("nan")),
                      "rot_deg": causal.get("rot_abs_mean_deg", float("nan")),
                      "status": r.get("status", "?")})
     df = pd.DataFrame(rows)

@@ -182,13 +182,15 @@ def accuracy_metrics(seq: Sequence, result: SlamResult) -> dict:
         if gt.occupancy is not None:
             out["map"] = map_agreement(result.log_odds, gt.occupancy)
     if seq.relations is not None:
-        from slamlab.eval.relations import LOOP_MIN_DT_S, relation_errors
+        from slamlab.eval.relations import LOOP_MIN_DT_S, loop_end_offsets, relation_errors
 
         relations = relations_within(seq.relations, result.times)
         if len(relations.t1):
             # each path as a whole, and its local and loop relations apart
             rel = relation_errors(result.times, result.trajectory, relations, loop_min_dt_s=LOOP_MIN_DT_S)
             rel["causal"] = relation_errors(result.times, result.causal, relations, loop_min_dt_s=LOOP_MIN_DT_S)
+            # where the online path's loop error sits: before the loop closed, or at the return
+            rel["causal"]["loop_offsets"] = loop_end_offsets(result.times, result.causal, result.trajectory, relations, LOOP_MIN_DT_S)
             rel["odometry"] = relation_errors(result.times, result.odometry, relations, loop_min_dt_s=LOOP_MIN_DT_S)
             rel["of_total"] = int(len(seq.relations.t1))
             rel["loop_min_dt_s"] = LOOP_MIN_DT_S

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slamlab.eval.relations import LOOP_MIN_DT_S, SPAN_KEYS, match_times, relation_errors, relation_residuals
+from slamlab.eval.relations import LOOP_MIN_DT_S, SPAN_KEYS, loop_end_offsets, match_times, relation_errors, relation_residuals
 from slamlab.frames import Relations
 from slamlab.geometry import se2_compose, se2_inverse
 
@@ -136,3 +136,25 @@ def test_shape_mismatch_is_rejected():
     rels = Relations(t1=np.array([0.0]), t2=np.array([1.0]), rel=np.zeros((1, 3)))
     with pytest.raises(ValueError, match="2 times but 3 poses"):
         relation_errors(np.array([0.0, 1.0]), np.zeros((3, 3)), rels)
+
+
+def test_loop_end_offsets_say_where_the_online_path_was_off():
+    """The online path is 0.3 m off the smoothed one while the loop is open (before 50 s) and
+    agrees with it from the return on: the offset sits at the first visits, not the returns.
+    Local relations do not count; either order of t1 and t2 is a visit then a return."""
+    times = np.arange(0.0, 100.0, 1.0)
+    smoothed = np.stack([np.cos(times / 10.0), np.sin(times / 10.0), times / 10.0], axis=1)
+    online = smoothed.copy()
+    online[times < 50.0, 0] += 0.3
+    rels = Relations(np.array([10.0, 90.0, 20.0, 60.0]), np.array([80.0, 15.0, 21.0, 61.0]), np.zeros((4, 3)))
+    off = loop_end_offsets(times, online, smoothed, rels, loop_min_dt_s=LOOP_MIN_DT_S)
+    assert off["start_m"] == pytest.approx(0.3)
+    assert off["end_m"] == pytest.approx(0.0)
+    # a lag at the return shows at the end instead
+    lag = smoothed.copy()
+    lag[times >= 80.0, 1] -= 0.2
+    off = loop_end_offsets(times, lag, smoothed, rels, loop_min_dt_s=LOOP_MIN_DT_S)
+    assert off["start_m"] == pytest.approx(0.0)
+    assert off["end_m"] == pytest.approx(0.2)
+    # no loop relation: no figure rather than a zero
+    assert np.isnan(loop_end_offsets(times, online, smoothed, rels, loop_min_dt_s=1000.0)["start_m"])

@@ -126,6 +126,41 @@ def relation_errors(
     return out
 
 
+def loop_end_offsets(
+    times: np.ndarray,
+    online: np.ndarray,
+    smoothed: np.ndarray,
+    relations: Relations,
+    loop_min_dt_s: float = LOOP_MIN_DT_S,
+    time_tol_s: float = DEFAULT_TIME_TOL_S,
+) -> dict[str, float]:
+    """Where an online estimate's loop-relation error sits: the mean distance (m) between the
+    online and the smoothed positions at the earlier pose of each loop relation (`start_m`)
+    and at the later one (`end_m`); NaN without loop relations.
+
+    Both paths come from one filter and start at the same pose, so they share a frame. A
+    large `start_m` with a small `end_m` says the online path was elsewhere than the
+    surviving hypothesis *before* the loop closed (uncertainty that only the return resolves,
+    which no causal estimate can undo); a large `end_m` says the online path lags at the
+    return itself."""
+    t1 = np.asarray(relations.t1, dtype=np.float64)
+    t2 = np.asarray(relations.t2, dtype=np.float64)
+    loop = np.abs(t2 - t1) >= loop_min_dt_s
+    if not loop.any():
+        return {"start_m": float("nan"), "end_m": float("nan")}
+    first = np.minimum(t1[loop], t2[loop])  # either order: the earlier visit
+    last = np.maximum(t1[loop], t2[loop])
+    online = np.asarray(online, dtype=np.float64)
+    smoothed = np.asarray(smoothed, dtype=np.float64)
+
+    def gap(at: np.ndarray) -> float:
+        i = match_times(np.asarray(times, dtype=np.float64).reshape(-1), at, time_tol_s)
+        d = online[i, :2] - smoothed[i, :2]
+        return float(np.mean(np.hypot(d[:, 0], d[:, 1])))
+
+    return {"start_m": gap(first), "end_m": gap(last)}
+
+
 def _summary(trans_m: FloatArray, rot_rad: FloatArray) -> dict[str, float]:
     """`relation_errors`' statistics of per-relation errors (m, rad)."""
     rot_deg = np.degrees(np.abs(rot_rad))

@@ -107,6 +107,10 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
             local, loop = part["local"], part["loop"]
             out.append((f"{label}, local / loop relations (m; {fmt_number(local.get('count'))} / {fmt_number(loop.get('count'))})",
                         f"{fmt_number(local.get('trans_abs_mean_m'))} / {fmt_number(loop.get('trans_abs_mean_m'))}"))
+    offsets = rel.get("causal", {}).get("loop_offsets") if isinstance(rel.get("causal"), dict) else None
+    if isinstance(offsets, dict) and "start_m" in offsets:  # eval.relations.loop_end_offsets
+        out.append(("online estimate off the final path at loops' first visits / returns (m)",
+                    f"{fmt_number(offsets['start_m'])} / {fmt_number(offsets.get('end_m', float('nan')))}"))
     odo_rel = rel.get("odometry") if isinstance(rel.get("odometry"), dict) else {}
     if "trans_abs_mean_m" in odo_rel:
         out.append(("odometry rel. error, the baseline (m / °)",
