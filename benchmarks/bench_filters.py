@@ -74,7 +74,7 @@ def _many(jobs: list[tuple[dict, list[str]]], out: Path, n_jobs: int) -> list[di
         return list(pool.map(one, range(len(jobs))))
 
 
-def lidar2d(out: Path, n_jobs: int, seeds: range, steps: tuple[float, ...] = (PRESET_STEP, PRESET_STEP / 2)) -> None:
+def lidar2d(out: Path, n_jobs: int, seeds: range, steps: tuple[float, ...]) -> None:
     d = data_dir()
     jobs = []
     for log in LOGS:
