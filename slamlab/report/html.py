@@ -3,6 +3,7 @@ and the re-run command of a run."""
 
 from __future__ import annotations
 
+import functools
 import math
 import shlex
 from datetime import datetime
@@ -16,8 +17,10 @@ from slamlab.artifacts import write_text
 TEMPLATE_DIR = Path(__file__).resolve().parent / "templates"
 
 
+@functools.cache
 def environment() -> jinja2.Environment:
-    """Jinja2 with autoescape on: run names, errors and config values are user text."""
+    """Jinja2 with autoescape on: run names, errors and config values are user text. One per
+    process: it keeps the compiled templates, so a sweep's run pages compile them once."""
     env = jinja2.Environment(
         loader=jinja2.FileSystemLoader(str(TEMPLATE_DIR)),
         autoescape=jinja2.select_autoescape(["html"], default=True),
