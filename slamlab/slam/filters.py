@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 
-import numba
 import numpy as np
 
 from slamlab.frames import GridImage
@@ -28,12 +27,6 @@ from slamlab.slam.matcher import Matcher
 from slamlab.slam.replay import reduce_map, reduce_tiled_map
 from slamlab.slam.scan import ScanPoints, points_to_world
 from slamlab.slam.tiles import TiledMaps
-
-# Particles are handed to the threads one at a time (numba's dynamic schedule) rather than
-# in equal halves: their costs differ (a particle that copies many tiles, or climbs longer),
-# and with 30 particles on 2 threads one slow half kept the other thread waiting. Each
-# particle's result depends only on its own inputs, so the schedule changes no result.
-PARTICLE_CHUNK = 1
 
 
 def _field(matcher: Matcher | None) -> tuple[float, float]:
@@ -120,19 +113,17 @@ class PerParticleMaps(ParticleMaps):
 
     def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints, step_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
         # a shorter step than the reference gets a proportionally narrower prior (sigma)
-        with numba.parallel_chunksize(PARTICLE_CHUNK):
-            return matcher.match_each(self.maps, poses, scan, prior_scale=step_scale**2)
+        return matcher.match_each(self.maps, poses, scan, prior_scale=step_scale**2)
 
     def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
         if len(scan.xy) == 0:
             return
-        with numba.parallel_chunksize(PARTICLE_CHUNK):
-            if self._identical and np.all(poses == poses[0]):
-                # same map, same pose: insert once and share it (the first step)
-                self.maps.insert_scan(poses, scan.xy, scan.origin, which=np.array([0]))
-                self.maps.share_all_from(0)
-            else:
-                self.maps.insert_scan(poses, scan.xy, scan.origin)
+        if self._identical and np.all(poses == poses[0]):
+            # same map, same pose: insert once and share it (the first step)
+            self.maps.insert_scan(poses, scan.xy, scan.origin, which=np.array([0]))
+            self.maps.share_all_from(0)
+        else:
+            self.maps.insert_scan(poses, scan.xy, scan.origin)
         self._identical = False
         self.peak_mb = max(self.peak_mb, self.maps.memory_mb(self.maps.peak_tiles))
 
