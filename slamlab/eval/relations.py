@@ -120,7 +120,7 @@ def relation_errors(
     trans_m, rot_rad = relation_residuals(times, poses, relations, time_tol_s)
     out: dict = _summary(trans_m, rot_rad)
     if loop_min_dt_s is not None:
-        loop = np.abs(np.asarray(relations.t2) - np.asarray(relations.t1)) >= loop_min_dt_s  # either order: a revisit
+        loop = _loop_mask(relations, loop_min_dt_s)
         for name, keep in (("local", ~loop), ("loop", loop)):  # the squares' statistics stay with the whole
             out[name] = {k: v for k, v in _summary(trans_m[keep], rot_rad[keep]).items() if k in SPAN_KEYS}
     return out
@@ -143,22 +143,25 @@ def loop_end_offsets(
     surviving hypothesis *before* the loop closed (uncertainty that only the return resolves,
     which no causal estimate can undo); a large `end_m` says the online path lags at the
     return itself."""
-    t1 = np.asarray(relations.t1, dtype=np.float64)
-    t2 = np.asarray(relations.t2, dtype=np.float64)
-    loop = np.abs(t2 - t1) >= loop_min_dt_s
+    loop = _loop_mask(relations, loop_min_dt_s)
     if not loop.any():
         return {"start_m": float("nan"), "end_m": float("nan")}
-    first = np.minimum(t1[loop], t2[loop])  # either order: the earlier visit
-    last = np.maximum(t1[loop], t2[loop])
-    online = np.asarray(online, dtype=np.float64)
-    smoothed = np.asarray(smoothed, dtype=np.float64)
+    t1 = np.asarray(relations.t1, dtype=np.float64)[loop]
+    t2 = np.asarray(relations.t2, dtype=np.float64)[loop]
+    times = np.asarray(times, dtype=np.float64).reshape(-1)
+    d_xy = np.asarray(online, dtype=np.float64)[:, :2] - np.asarray(smoothed, dtype=np.float64)[:, :2]
 
     def gap(at: np.ndarray) -> float:
-        i = match_times(np.asarray(times, dtype=np.float64).reshape(-1), at, time_tol_s)
-        d = online[i, :2] - smoothed[i, :2]
+        d = d_xy[match_times(times, at, time_tol_s)]
         return float(np.mean(np.hypot(d[:, 0], d[:, 1])))
 
-    return {"start_m": gap(first), "end_m": gap(last)}
+    # either order of t1 and t2: the earlier time is the first visit, the later the return
+    return {"start_m": gap(np.minimum(t1, t2)), "end_m": gap(np.maximum(t1, t2))}
+
+
+def _loop_mask(relations: Relations, loop_min_dt_s: float) -> np.ndarray:
+    """Which relations are loop relations: spanning `loop_min_dt_s` or more, in either order (a revisit)."""
+    return np.abs(np.asarray(relations.t2, dtype=np.float64) - np.asarray(relations.t1, dtype=np.float64)) >= loop_min_dt_s
 
 
 def _summary(trans_m: FloatArray, rot_rad: FloatArray) -> dict[str, float]:
