@@ -31,14 +31,13 @@ from slamlab.frames import Relations, Sequence
 from slamlab.interrupt import RunInterrupted, StopOnSigint
 from slamlab.io.run_metrics import STATUS_FAILED, STATUS_INTERRUPTED, RunMetrics
 from slamlab.io.rundir import FirstScan, ParticleRecord, RunDirectory, RunFile, TrajectoryKind
+from slamlab.io.table import Table
 from slamlab.manifest import build_manifest
 from slamlab.memory import RunPeakMemory
 from slamlab.progress import make_progress
 from slamlab.slam.result import SlamResult
 
 if TYPE_CHECKING:
-    import pandas as pd
-
     from slamlab.assemble import RunSetup
 
 log = logging.getLogger("slamlab")
@@ -125,7 +124,7 @@ def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> RunMet
     """Runtime and filter statistics common to every dataset."""
     span = float(np.ptp(result.times)) if len(result.times) > 1 else 0.0
     steps = result.steps
-    neff = steps["neff"].to_numpy(dtype=float) if len(steps) else np.array([float("nan")])
+    neff = steps["neff"].astype(float) if len(steps) else np.array([float("nan")])
     runtime = max(result.runtime_s, 1e-9)
     return RunMetrics(
         dataset=seq.name,
@@ -209,14 +208,12 @@ def relations_within(relations: Relations, times: np.ndarray) -> Relations:
     return Relations(relations.t1[keep], relations.t2[keep], relations.rel[keep], relations.path)
 
 
-def relation_table(seq: Sequence, result: SlamResult) -> pd.DataFrame | None:
+def relation_table(seq: Sequence, result: SlamResult) -> Table | None:
     """One row per relation inside the run, for the report's error-over-time plot
     (relations.csv): t1, t2 (s), length_m (the relation's true translation), and the
     SLAM and odometry errors (trans m, rot deg)."""
     if seq.relations is None:
         return None
-    import pandas as pd
-
     from slamlab.eval.relations import relation_residuals
 
     rel = relations_within(seq.relations, result.times)
@@ -226,7 +223,7 @@ def relation_table(seq: Sequence, result: SlamResult) -> pd.DataFrame | None:
     for name, poses in (("slam", result.trajectory), ("odometry", result.odometry)):
         trans, rot = relation_residuals(result.times, poses, rel)
         cols[f"{name}_trans_m"], cols[f"{name}_rot_deg"] = trans, np.degrees(np.abs(rot))
-    return pd.DataFrame(cols)
+    return Table(cols)
 
 
 def write_recordings(run_dir: Path, result: SlamResult, first_scan: bool) -> None:

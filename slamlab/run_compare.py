@@ -97,11 +97,10 @@ def _metrics_difference(a: Path, b: Path) -> str | None:
 
 
 def _table_difference(a: Path, b: Path) -> str | None:
-    """Per-step tables (csv or parquet), every column but the step wall times."""
+    """Per-step tables, every column but the step wall times (compared as the text written)."""
     import pandas as pd
 
-    read = pd.read_parquet if a.suffix == ".parquet" else (lambda p: pd.read_csv(p, dtype=str))
-    ta, tb = read(a), read(b)
+    ta, tb = pd.read_csv(a, dtype=str), pd.read_csv(b, dtype=str)
     if list(ta.columns) != list(tb.columns) or len(ta) != len(tb):
         return f"{a.name}: shape {ta.shape} originally, {tb.shape} in the re-run"
     cols = [c for c in ta.columns if not VOLATILE.search(c)]
@@ -167,7 +166,7 @@ def _bytes_difference(a: Path, b: Path) -> str | None:
 def _comparer(name: str) -> Callable[[Path, Path], str | None]:
     if name == RunFile.METRICS:
         return _metrics_difference
-    if name in (RunFile.STEPS_CSV, RunFile.STEPS_PARQUET):
+    if name == RunFile.STEPS_CSV:
         return _table_difference
     suffix = Path(name).suffix
     if suffix == ".npz":

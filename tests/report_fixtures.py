@@ -146,7 +146,6 @@ def make_run_dir(
         "step_time_s": rng.uniform(0.002, 0.004, n) * particles / 50,
     })
     steps.to_csv(run_dir / "steps.csv", index=False)
-    steps.to_parquet(run_dir / "steps.parquet", index=False)
 
     err = np.linalg.norm(slam[:, :2] - gt[:, :2], axis=1)
     oerr = np.linalg.norm(odo[:, :2] - gt[:, :2], axis=1)

@@ -133,22 +133,22 @@ def test_predict_spread_after_one_metre_matches_the_configured_noise():
                    "motion.per_distance_m=0.1")
     res = run_slam(_line_sequence(60, step), build_components(cfg))
     steps = res.steps
-    k = int(np.argmax(steps["distance_m"].to_numpy() >= 1.0 - 1e-9))
-    assert steps["distance_m"].iloc[k] == pytest.approx(1.0)
+    k = int(np.argmax(steps["distance_m"] >= 1.0 - 1e-9))
+    assert steps["distance_m"][k] == pytest.approx(1.0)
     # closed form for 20 straight steps with per-step sigmas scaled by 0.05 / 0.1
     m, a, b = 20, sxy * step / 0.1, sth * step / 0.1
     var_xy = 2 * m * a**2 + step**2 * b**2 * sum(i * i for i in range(m))
     want_xy, want_th = np.sqrt(var_xy), np.sqrt(m) * b
-    assert steps["expected_spread_xy_m"].iloc[k] == pytest.approx(want_xy, rel=1e-9)
-    assert steps["expected_spread_theta_rad"].iloc[k] == pytest.approx(want_th, rel=1e-9)
+    assert steps["expected_spread_xy_m"][k] == pytest.approx(want_xy, rel=1e-9)
+    assert steps["expected_spread_theta_rad"][k] == pytest.approx(want_th, rel=1e-9)
     # sampling error of a standard deviation from n draws: about 1 / sqrt(2 n) = 1.6 %; allow 3 of them
     tol = 3 / np.sqrt(2 * n)
-    assert steps["spread_xy_m"].iloc[k] == pytest.approx(want_xy, rel=tol)
-    assert steps["spread_theta_rad"].iloc[k] == pytest.approx(want_th, rel=tol)
+    assert steps["spread_xy_m"][k] == pytest.approx(want_xy, rel=tol)
+    assert steps["spread_theta_rad"][k] == pytest.approx(want_th, rel=tol)
     # and the noise really is what moved them: ten times the noise, ten times the spread
     loud = run_slam(_line_sequence(60, step), build_components(make_cfg("mode=predict", f"particles={n}", f"motion.sigma_xy_m={10 * sxy}",
                                                        f"motion.sigma_theta_rad={10 * sth}", "motion.per_distance_m=0.1")))
-    assert loud.steps["spread_theta_rad"].iloc[k] == pytest.approx(10 * want_th, rel=tol)
+    assert loud.steps["spread_theta_rad"][k] == pytest.approx(10 * want_th, rel=tol)
 
 
 @pytest.mark.slow

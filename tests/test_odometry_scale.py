@@ -57,7 +57,7 @@ def test_the_filter_learns_the_rooms_odometry_scale():
                                               "motion.scale_gain_per_m=2.0")))
     scale = on.extras["odometry_scale"]
     assert 0.92 < scale < 0.98, scale
-    assert on.steps["odometry_scale"].iloc[0] == 1.0 and on.steps["odometry_scale"].iloc[-1] == scale
+    assert on.steps["odometry_scale"][0] == 1.0 and on.steps["odometry_scale"][-1] == scale
     off = run_slam(seq, build_components(_cfg("particles=20", "seed=1", "matcher=likelihood", "filter=rbpf")))
     assert "odometry_scale" not in off.extras and "odometry_scale" not in off.steps
 

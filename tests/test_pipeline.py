@@ -46,7 +46,7 @@ def sim_run(sim_cache, tmp_path_factory) -> Path:
 def test_run_directory_holds_every_artifact(sim_run):
     for name in (
         "map.png", "map.pgm", "map.yaml", "map_logodds.npz", "trajectory.tum", "trajectory_causal.tum",
-        "odometry.tum", "groundtruth.tum", "steps.csv", "steps.parquet", "metrics.json", "manifest.json",
+        "odometry.tum", "groundtruth.tum", "steps.csv", "metrics.json", "manifest.json",
         "texture.png", "texture_over_map.png", "report.html",
     ):
         assert (sim_run / name).is_file(), name

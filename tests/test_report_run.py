@@ -45,7 +45,6 @@ def test_run_report_content(tmp_path: Path) -> None:
 def test_run_report_without_ground_truth_or_steps(tmp_path: Path) -> None:
     d = make_run_dir(tmp_path / "run", groundtruth=False)
     (d / "steps.csv").unlink()
-    (d / "steps.parquet").unlink()
     page = write_run_report(d).read_text()
     assert "No ground truth for this dataset." in page
     assert "No per-step table" in page

@@ -125,7 +125,7 @@ def test_replay_keeps_its_frames_inside_the_page_budget(tmp_path: Path, monkeypa
 def test_sim_run_records_a_replay_that_matches_its_results(sim_run: Path) -> None:
     z = _replay(sim_run)
     metrics = json.loads((sim_run / "metrics.json").read_text())
-    steps = pd.read_parquet(sim_run / "steps.parquet")
+    steps = pd.read_csv(sim_run / "steps.csv")
     assert len(z["step"]) == min(SNAPSHOTS, metrics["processed_steps"]) and z["step"][-1] == metrics["processed_steps"] - 1
     assert z["poses"].shape == (len(z["step"]), metrics["particles"], 3)
     assert np.array_equal(z["scan_index"], steps["scan_index"].to_numpy()[z["step"]])

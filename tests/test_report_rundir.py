@@ -67,7 +67,7 @@ def test_failed_runs(tmp_path: Path) -> None:
 
 def test_optional_files_missing(tmp_path: Path) -> None:
     d = make_run_dir(tmp_path / "r", groundtruth=False)
-    for name in ("map_logodds.npz", "steps.csv", "steps.parquet", "manifest.json"):
+    for name in ("map_logodds.npz", "steps.csv", "manifest.json"):
         (d / name).unlink()
     run = load_run(d)
     assert run.load_map() is None and run.load_steps() is None

@@ -79,7 +79,7 @@ def test_smoothed_path_ends_at_the_final_best_particle():
     # is reported: the final best particle's, so its last processed pose is the causal one.
     res = run_slam(_room_sequence(), build_components(_cfg("particles=20", "matcher=likelihood", "resampler.threshold=1.0")))
     last = int(res.extras["step_scans"][-1])
-    assert bool(res.steps["resampled"].iloc[-1])
+    assert bool(res.steps["resampled"][-1])
     np.testing.assert_array_equal(res.trajectory[last], res.causal[last])
 
 
@@ -123,7 +123,7 @@ def test_linear_weighting_underflow_is_counted_and_survived(monkeypatch):
         res = run_slam(_room_sequence(30), build_components(_cfg("particles=10", "weighting=linear", "matcher=grid")))
     assert np.all(np.isfinite(res.trajectory))
     assert res.extras["weighting_underflows"] == res.extras["processed_steps"] - 1  # every update after the first
-    np.testing.assert_allclose(res.steps["best_weight"].iloc[1:], 0.1)  # uniform over 10 particles
+    np.testing.assert_allclose(res.steps["best_weight"][1:], 0.1)  # uniform over 10 particles
 
 
 @pytest.mark.parametrize(

@@ -4,7 +4,7 @@ readers and writers of the files whose format is plain data (JSON, TUM, NumPy ar
 The pipeline writes through it, the reports read through it and `slamlab-verify` compares
 through it, so a file name is spelled once. It sits in the core layer (it needs nothing but
 numpy and the other io helpers) so that every layer above can use it; the writers that need
-the pipeline's formats (the map images, the CSV/Parquet tables: `slamlab.artifacts`) take
+the pipeline's formats (the map images, the CSV tables: `slamlab.artifacts`) take
 their names from here.
 
 Readers are forgiving where reports need them to be: an optional file that is absent reads
@@ -44,7 +44,6 @@ class RunFile(StrEnum):
     ODOMETRY = "odometry.tum"
     GROUNDTRUTH = "groundtruth.tum"
     STEPS_CSV = "steps.csv"
-    STEPS_PARQUET = "steps.parquet"
     CONSISTENCY = "consistency.csv"
     PARTICLES = "particles.npz"  # record.particles
     REPLAY = "replay.npz"  # record.replay
@@ -284,15 +283,9 @@ class RunDirectory:
         return read_logodds(path) if path.is_file() else None
 
     def read_steps(self) -> pd.DataFrame | None:
-        """The per-step table; Parquet first (typed, faster), CSV as fallback. None if absent."""
+        """The per-step table (steps.csv), None if absent."""
         import pandas as pd
 
-        pq = self.path / RunFile.STEPS_PARQUET
-        if pq.is_file():
-            try:
-                return pd.read_parquet(pq)
-            except Exception:  # noqa: BLE001 - a broken parquet falls back to the CSV twin
-                pass
         csv = self.path / RunFile.STEPS_CSV
         return pd.read_csv(csv) if csv.is_file() else None
 

@@ -162,7 +162,7 @@ class RunDir:
         return self._cached("first_scan", self.files.read_first_scan)
 
     def load_steps(self) -> pd.DataFrame | None:
-        """The per-step table (steps.parquet preferred, steps.csv otherwise), or None."""
+        """The per-step table (`RunDirectory.read_steps`), or None."""
         return self._cached("steps", self.files.read_steps)
 
 

@@ -43,6 +43,7 @@ import numpy as np
 from slamlab.errors import ConfigError
 from slamlab.frames import Sequence
 from slamlab.geometry import FloatArray, se2_between, se2_compose, weighted_mean_pose
+from slamlab.io.table import Table
 from slamlab.slam.filters import FilterKind
 from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import Matcher
@@ -212,16 +213,14 @@ def run_slam(
     runtime = time.perf_counter() - t_loop
     map_memory = maps.memory()
     unit = maps.unit
-    del maps  # the particles' maps (tens of MB for the RBPF) go before pandas comes in below
+    del maps  # the particles' maps (tens of MB for the RBPF) go before the outputs are made
     final_map = decode_image(final_map, unit)  # float32 log-odds once the maps are gone
 
     # `best` indexes the last step's particles before resampling (the set hist_poses[-1]
     # holds); after a resample the weights are uniform and no longer say who was best.
     smooth = ancestral_path(hist_poses, hist_parent, best)
 
-    import pandas as pd  # here, not at import: the filter's memory peak does without its ~70 MB
-
-    steps = pd.DataFrame(
+    steps = Table(
         {
             "step": np.arange(n_steps),
             "scan_index": np.array([scans[i].index for i in step_scans], dtype=np.int64),
@@ -245,7 +244,7 @@ def run_slam(
         resample_count=resample_count,
         runtime_s=runtime,
         fill="odometry",
-        particle_history=None if hist_w is None else ParticleHistory(hist_poses, hist_w, hist_parent, steps["resampled"].to_numpy(bool)),
+        particle_history=None if hist_w is None else ParticleHistory(hist_poses, hist_w, hist_parent, steps["resampled"].astype(bool)),
         first_scan_xy=first_scan[0],
         first_scan_origin=first_scan[1],
         replay=None if replay is None else replay.arrays(),

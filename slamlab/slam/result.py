@@ -7,15 +7,11 @@ directory (see docs/RUN_DIRECTORY.md).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
-
-if TYPE_CHECKING:  # pandas costs 0.4 s and ~70 MB to import: only where a table is built
-    import pandas as pd
+from slamlab.io.table import Table
 
 
 @dataclass(frozen=True, slots=True)
@@ -62,7 +58,7 @@ class SlamResult:
     causal: FloatArray
     odometry: FloatArray
     log_odds: GridImage
-    steps: pd.DataFrame
+    steps: Table
     particles: int
     resample_count: int
     runtime_s: float
