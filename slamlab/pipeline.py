@@ -78,7 +78,7 @@ def load_sequence(dataset_cfg: DictConfig) -> Sequence:
         raise ConfigError("dataset._target_", f"must return a slamlab Sequence, got {type(seq).__name__}")
     if len(seq) == 0:
         raise DataError(",".join(seq.sources) or seq.name, "the log holds no scans")
-    repeated = repeated_stamps(np.array([s.t for s in seq.scans]), ",".join(seq.sources) or seq.name)
+    repeated = repeated_stamps(seq.times, ",".join(seq.sources) or seq.name)
     if repeated:
         log.warning("%s", repeated)
     return seq

@@ -14,6 +14,7 @@ from omegaconf import OmegaConf
 from slamlab.datasets.carmen import flaser_beam_angles, load_carmen
 from slamlab.datasets.relations import load_relations
 from slamlab.errors import DataError
+from slamlab.frames import LazyScans
 from slamlab.eval.relations import match_times, relation_errors
 from slamlab.geometry import se2_between
 
@@ -239,6 +240,25 @@ def test_robotlaser1_log(tmp_path):
     assert s.valid.tolist() == [True, False, True, True, False]  # >= max_range 20, NaN
     assert seq.max_range_m == 20.0
     np.testing.assert_allclose(s.lidar_to_body[:3, 3], [0.1, 0, 0], atol=1e-5)
+
+
+def test_scans_of_two_shapes_come_in_file_order_made_on_demand(tmp_path):
+    # 3- and 5-beam records interleaved: two blocks of arrays, one scan list in file order
+    # whose frames are made when asked for (LazyScans), not held one object per scan
+    widths = [3, 5, 3, 3, 5]
+    lines = [flaser([1.0 + k] * w, pose=(0.1 * k, 0.0, 0.01 * k), t=10.0 + k) for k, w in enumerate(widths)]
+    seq = load_carmen(write(tmp_path / "mixed.clf", "\n".join(lines)))
+    assert isinstance(seq.scans, LazyScans) and len(seq) == 5
+    frames = list(seq.scans)
+    assert [f.index for f in frames] == [0, 1, 2, 3, 4] and [len(f.ranges) for f in frames] == widths
+    assert [f.ranges[0] for f in frames] == [1.0, 2.0, 3.0, 4.0, 5.0]
+    np.testing.assert_array_equal(seq.times, [f.t for f in frames])
+    np.testing.assert_array_equal(seq.odometry, [f.odom for f in frames])
+    assert seq.scans[-1].index == 4 and seq.scans[3].odom[0] == pytest.approx(0.3)
+    part = seq.scans[1:4]  # a slice is lazy too, over the same arrays
+    assert isinstance(part, LazyScans) and [f.index for f in part] == [1, 2, 3]
+    np.testing.assert_array_equal(part.times, seq.times[1:4])
+    assert part[0].index == 1 and np.array_equal(part[0].ranges, frames[1].ranges)
 
 
 def test_robotlaser1_preferred_over_flaser_copies(tmp_path):

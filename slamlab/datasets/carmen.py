@@ -46,7 +46,7 @@ import numpy as np
 from slamlab.datasets.bad_lines import BadLines
 from slamlab.datasets.relations import DEFAULT_RELATIONS_TOL_S, relations_for_log
 from slamlab.errors import DataError
-from slamlab.frames import ScanFrame, Sequence
+from slamlab.frames import LazyScans, ScanFrame, Sequence, scan_times
 from slamlab.geometry import rot_z, se2_between, trans, wrap_angle
 from slamlab.io.compressed import read_text
 from slamlab.config.datasets import CarmenDatasetConfig
@@ -435,7 +435,7 @@ def load_carmen(
     else:
         parsed = _parse_log(path, max_range_m, on_bad_line)
     scans = _frames(parsed)
-    times = np.array([s.t for s in scans])
+    times = scan_times(scans)
     rel, rel_path = relations_for_log(path, _log_stem(path), relations, times, relations_time_tol_s)
 
     sources = [str(path)] + ([str(rel_path)] if rel_path is not None else [])
@@ -476,23 +476,37 @@ class _ParsedLog:
     warnings: list[tuple[type[Warning], str]] = field(default_factory=list)  # cache only
 
 
-def _frames(parsed: _ParsedLog) -> list[ScanFrame]:
-    """One ScanFrame per record, in file order, viewing into the blocks' arrays."""
-    scans: list[ScanFrame | None] = [None] * sum(len(b.t) for b in parsed.blocks)
-    for b in parsed.blocks:
-        times = b.t.tolist()
-        per_record_angles = b.angles.ndim == 2
-        for k, i in enumerate(b.position.tolist()):
-            scans[i] = ScanFrame(
-                index=i,
-                t=times[k],
-                odom=b.odom[k],
-                ranges=b.ranges[k],
-                angles=b.angles[k] if per_record_angles else b.angles,
-                valid=b.valid[k],
-                lidar_to_body=b.mount,
-            )
-    return scans  # type: ignore[return-value]  # every slot was filled
+def _frames(parsed: _ParsedLog) -> LazyScans:
+    """The records in file order, each ScanFrame made on demand as views into its block's
+    arrays (`LazyScans`)."""
+    n = sum(len(b.t) for b in parsed.blocks)
+    block_of = np.empty(n, dtype=np.int32)  # record i is row row_of[i] of block block_of[i]
+    row_of = np.empty(n, dtype=np.int64)
+    times = np.empty(n)
+    odom = np.empty((n, 3))
+    for j, b in enumerate(parsed.blocks):
+        block_of[b.position] = j
+        row_of[b.position] = np.arange(len(b.t))
+        times[b.position] = b.t
+        odom[b.position] = b.odom
+    blocks = parsed.blocks
+
+    def frame(i: int) -> ScanFrame:
+        b = blocks[block_of[i]]
+        k = int(row_of[i])
+        return ScanFrame(
+            index=i,
+            t=float(times[i]),
+            odom=b.odom[k],
+            ranges=b.ranges[k],
+            angles=b.angles[k] if b.angles.ndim == 2 else b.angles,
+            valid=b.valid[k],
+            lidar_to_body=b.mount,
+        )
+
+    times.flags.writeable = False
+    odom.flags.writeable = False
+    return LazyScans(frame, np.arange(n), times, odom)
 
 
 def _parse_log(path: Path, max_range_m: float | None, on_bad_line: str) -> _ParsedLog:

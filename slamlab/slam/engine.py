@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slamlab.errors import ConfigError
-from slamlab.frames import Sequence
+from slamlab.frames import Sequence, scan_odometry, scan_times
 from slamlab.geometry import FloatArray, se2_between, se2_compose, weighted_mean_pose
 from slamlab.io.table import Table
 from slamlab.slam.filters import FilterKind
@@ -115,8 +115,8 @@ def run_slam(
     scans = sequence.scans if c.max_scans is None else sequence.scans[: c.max_scans]
     if not scans:
         raise ConfigError("steps.max_scans", f"sequence {sequence.name!r} has no scans to process")
-    times = np.array([s.t for s in scans], dtype=np.float64)
-    odom = np.array([s.odom for s in scans], dtype=np.float64).reshape(-1, 3)
+    times = scan_times(scans)
+    odom = scan_odometry(scans)
     step_scans = select_steps(odom, c.every, c.min_distance_m, c.min_angle_rad, c.skip_static_start)
     if c.max_steps is not None and len(step_scans) > c.max_steps:
         # the run ends at its last processed scan (max_steps=1: the first scan's map alone)
