@@ -23,6 +23,9 @@ from slamlab.io.rundir import RECORDS, RunFile
 # machine, folder and commit; .hydra/ is the config the re-run was made from (the run
 # directory contract's RECORDS). Log files (`*.log`) are records too.
 NOT_RESULTS = RECORDS
+# Runs before 2026-11-27 also wrote the steps table as steps.parquet, a twin of steps.csv
+# (which is compared): a re-run made now does not write it, and that is no difference.
+RETIRED_TWINS = frozenset({"steps.parquet"})
 # Metrics (and step columns) that measure the machine or the implementation, not the
 # algorithm's results: timings, memory, and the matcher's map reads (a faster kernel doing
 # the same search reads fewer cells and finds the same poses).
@@ -38,7 +41,7 @@ def result_files(run_dir: Path) -> set[str]:
     for p in run_dir.rglob("*"):
         rel = p.relative_to(run_dir)
         if (p.is_file() and rel.parts[0] not in NOT_RESULTS and rel.suffix != ".log"
-                and not rel.name.startswith(TMP_MARK)):
+                and rel.as_posix() not in RETIRED_TWINS and not rel.name.startswith(TMP_MARK)):
             names.add(rel.as_posix())
     return names
 

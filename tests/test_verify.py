@@ -111,6 +111,12 @@ def test_log_odds_point_clouds_tables_and_missing_files_count(run_and_rerun, tmp
     (d / "texture_odometry.png").unlink()
     assert compare_runs(d, rerun) == "texture_odometry.png written by the re-run but missing from the run"
 
+    # a run made before 2026-11-27 also holds steps.parquet, the twin of its steps.csv: a
+    # re-run without it still reproduces the run
+    d = edited_copy()
+    (d / "steps.parquet").write_bytes(b"PAR1 written by an earlier version PAR1")
+    assert compare_runs(d, rerun) is None
+
     # timings are not results: a different step time or runtime is no difference
     d = edited_copy()
     m = json.loads((d / "metrics.json").read_text())
