@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import bz2
 import gzip
+import pickle
 import warnings
 from pathlib import Path
 
@@ -259,6 +260,8 @@ def test_scans_of_two_shapes_come_in_file_order_made_on_demand(tmp_path):
     assert isinstance(part, LazyScans) and [f.index for f in part] == [1, 2, 3]
     np.testing.assert_array_equal(part.times, seq.times[1:4])
     assert part[0].index == 1 and np.array_equal(part[0].ranges, frames[1].ranges)
+    back = pickle.loads(pickle.dumps(seq))  # a Sequence still pickles (e.g. to a worker process)
+    assert [f.index for f in back.scans] == [0, 1, 2, 3, 4] and np.array_equal(back.scans[4].ranges, frames[4].ranges)
 
 
 def test_robotlaser1_preferred_over_flaser_copies(tmp_path):

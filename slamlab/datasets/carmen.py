@@ -476,11 +476,34 @@ class _ParsedLog:
     warnings: list[tuple[type[Warning], str]] = field(default_factory=list)  # cache only
 
 
+@dataclass(frozen=True)
+class _RecordFrame:
+    """Record i of a log as a ScanFrame of views into its block's arrays (a class, not a
+    closure, so that a Sequence pickles)."""
+
+    blocks: list[_ScanBlock]
+    block_of: np.ndarray  # (N,) record i is row row_of[i] of block block_of[i]
+    row_of: np.ndarray
+    times: np.ndarray  # (N,) s
+
+    def __call__(self, i: int) -> ScanFrame:
+        b = self.blocks[self.block_of[i]]
+        k = int(self.row_of[i])
+        return ScanFrame(
+            index=i,
+            t=float(self.times[i]),
+            odom=b.odom[k],
+            ranges=b.ranges[k],
+            angles=b.angles[k] if b.angles.ndim == 2 else b.angles,
+            valid=b.valid[k],
+            lidar_to_body=b.mount,
+        )
+
+
 def _frames(parsed: _ParsedLog) -> LazyScans:
-    """The records in file order, each ScanFrame made on demand as views into its block's
-    arrays (`LazyScans`)."""
+    """The records in file order, each ScanFrame made on demand (`LazyScans`)."""
     n = sum(len(b.t) for b in parsed.blocks)
-    block_of = np.empty(n, dtype=np.int32)  # record i is row row_of[i] of block block_of[i]
+    block_of = np.empty(n, dtype=np.int32)
     row_of = np.empty(n, dtype=np.int64)
     times = np.empty(n)
     odom = np.empty((n, 3))
@@ -489,24 +512,9 @@ def _frames(parsed: _ParsedLog) -> LazyScans:
         row_of[b.position] = np.arange(len(b.t))
         times[b.position] = b.t
         odom[b.position] = b.odom
-    blocks = parsed.blocks
-
-    def frame(i: int) -> ScanFrame:
-        b = blocks[block_of[i]]
-        k = int(row_of[i])
-        return ScanFrame(
-            index=i,
-            t=float(times[i]),
-            odom=b.odom[k],
-            ranges=b.ranges[k],
-            angles=b.angles[k] if b.angles.ndim == 2 else b.angles,
-            valid=b.valid[k],
-            lidar_to_body=b.mount,
-        )
-
     times.flags.writeable = False
     odom.flags.writeable = False
-    return LazyScans(frame, np.arange(n), times, odom)
+    return LazyScans(_RecordFrame(parsed.blocks, block_of, row_of, times), np.arange(n), times, odom)
 
 
 def _parse_log(path: Path, max_range_m: float | None, on_bad_line: str) -> _ParsedLog:
