@@ -11,9 +11,9 @@ Rows (median of `--repeat` runs; numba kernels come from the on-disk cache after
   process (imports, reading the log, kernels, artifacts, report). Budget: <= 1.5 s CPU.
 `filter s` is the filter's own wall time (metrics.json's `runtime_s`), the part a matcher change moves;
 `--set` adds a config override to every run (e.g. `matcher.refine=gauss_newton` against the preset).
-`map reads` is metrics.json's `matcher_map_reads`; `limit s` is that at 1 ns a read: the
-least time any kernel doing the same search on one core needs (the physical limit beside
-each time). CPU is user + system of the process and its threads; peak is the process's peak
+`map reads` is metrics.json's `matcher_map_reads` (the cells the matcher's kernels read);
+`limit s` is that at 1 ns a read: the least time those reads take on one core (the physical
+limit beside each time). CPU is user + system of the process and its threads; peak is the process's peak
 resident memory as metrics.json reports it.
 """
 

@@ -286,6 +286,25 @@ def test_matchers_count_the_map_cells_they_read():
     assert fine % m == 0 and fine / m >= 1 + 6 * 3
 
 
+def test_tiled_coarse_grid_counts_each_yaws_window_once():
+    """On tiled maps a coarse grid of whole-cell shifts reads, for each yaw and coarse point,
+    the window of cells its shifts touch once (5 x 5 shifts: 6 x 6 cells), not four cells
+    per shift; the climb's scores still read four per point."""
+    from slamlab.slam.tiles import TiledMaps
+
+    maps = TiledMaps(MapSettings(resolution_m=0.05), 2, (0.0, 0.0), field_sigma_m=0.1, field_radius_m=0.3)
+    scan = ScanPoints(xy=_corridor_scan(), origin=np.zeros(2))
+    maps.insert_scan(np.zeros((2, 3)), scan.xy, scan.origin)
+    m = LikelihoodFieldMatcher(xy_half_width_m=0.1, xy_step_m=0.05, yaw_half_width_rad=0.025, yaw_step_rad=0.025, refine_levels=0, coarse_beam_step=3, beam_step=1)
+    m.match_each(maps, np.zeros((2, 3)), scan)
+    coarse, fine, _ = m._points(scan)
+    assert m.map_reads == 2 * 3 * len(coarse) * 36 + 2 * 4 * len(fine)  # 3 yaws; a climb of 0 levels scores once
+    # off whole cells the kernel places every offset: four cells per offset and point
+    half = LikelihoodFieldMatcher(xy_half_width_m=0.05, xy_step_m=0.025, yaw_half_width_rad=0.0, refine_levels=0, coarse_beam_step=3, beam_step=1)
+    half.match_each(maps, np.zeros((2, 3)), scan)
+    assert half.map_reads == 2 * 25 * len(coarse) * 4 + 2 * 4 * len(fine)
+
+
 def test_offset_grid_sizes_and_order():
     o = offset_grid(0.2, 0.05, 0.0, 0.01)
     assert o.shape == (81, 3)

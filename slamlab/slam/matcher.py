@@ -341,8 +341,9 @@ class Matcher(ABC):
     field_sigma_m: float = 0.0
     field_radius_m: float = 0.0
     move_to_best: bool = True
-    # map cells read so far (a bilinear field value is 4 reads, a hit test 1): the work a
-    # run's matching does, whatever the kernel; at ~1 ns a read it bounds the matcher's time
+    # map cells read so far (a bilinear field value is 4 reads, a hit test 1; a coarse grid of
+    # whole-cell shifts on tiled maps reads each yaw's window once per point): at ~1 ns a read
+    # it bounds the matcher's time
     map_reads: int = 0
 
     @abstractmethod
@@ -604,7 +605,7 @@ class LikelihoodFieldMatcher(Matcher):
             self.offsets, shifts, yaws, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
             self.kxy / prior_scale, self.kyaw / prior_scale, best, scores, evals, ext, lut_d, w_scale,
         )
-        self._count_field_reads(len(poses), len(coarse), len(fine), evals, ext)
+        self._count_field_reads(len(poses), len(coarse), len(fine), evals, ext, shifts if len(shifts) == len(self.offsets) else None)
         return self._finish(poses, best, scores)
 
     def _refinement(self, res_m: float, lut: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
@@ -643,7 +644,16 @@ class LikelihoodFieldMatcher(Matcher):
                 ext = np.ascontiguousarray(stretches[fine])
         return np.ascontiguousarray(xy[close[:: self.coarse_beam_step]]), np.ascontiguousarray(xy[fine]), ext
 
-    def _count_field_reads(self, n: int, n_coarse: int, n_fine: int, evals: np.ndarray, ext: FloatArray) -> None:
-        coarse = n * len(self.offsets) * n_coarse if len(self.offsets) > 1 else 0
+    def _count_field_reads(self, n: int, n_coarse: int, n_fine: int, evals: np.ndarray, ext: FloatArray, shifts: np.ndarray | None = None) -> None:
+        """Add the cells `n` particles' searches read: four per bilinear field value, except
+        that a coarse grid of whole-cell `shifts` (`tiled_match.coarse_scores_by_cells`) reads
+        each yaw's window of cells once per point."""
+        if len(self.offsets) <= 1:
+            coarse = 0
+        elif shifts is not None:
+            window = int(np.ptp(shifts[:, 0]) + 2) * int(np.ptp(shifts[:, 1]) + 2)  # (rows + 1) x (cols + 1)
+            coarse = n * len(np.unique(shifts[:, 2])) * n_coarse * window
+        else:
+            coarse = 4 * n * len(self.offsets) * n_coarse
         samples = n_fine + int(ext[:, 2:4].sum())  # a stretch reads the field at each of its samples
-        self.map_reads += 4 * (coarse + int(evals.sum()) * samples)
+        self.map_reads += coarse + 4 * int(evals.sum()) * samples
