@@ -107,6 +107,7 @@ def build_components(cfg: DictConfig, run: RunConfig | None = None) -> Component
         skip_static_start=s.skip_static_start,
         max_scans=s.max_scans,
         max_steps=s.max_steps,
+        between=s.between,
         motion=construct(typed_group(cfg, "motion"), MotionModel, "motion"),
         weighting=construct(typed_group(cfg, "weighting"), Weighting, "weighting"),
         resampler=construct(typed_group(cfg, "resampler"), Resampler, "resampler"),

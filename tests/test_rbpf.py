@@ -214,3 +214,51 @@ def test_one_particle_in_tiles_runs_the_dense_course_filter_bit_for_bit_on_intel
     crop = d.data[r0:r0 + h, c0:c0 + w]
     assert crop.shape == t.data.shape and np.array_equal(crop, t.data)
     assert np.count_nonzero(d.data) == np.count_nonzero(crop) > 0
+
+
+def _room_truth(n: int = 60) -> np.ndarray:
+    """The true poses of `_room_sequence`'s scans (its own formula)."""
+    s = np.minimum(np.maximum(np.arange(n) - 5, 0), n) * 0.03
+    return np.column_stack([-1.5 + s, np.full(n, -0.5), 0.2 * s])
+
+
+@pytest.mark.parametrize("filt", ["rbpf", "course"])
+def test_scans_between_steps_matched_causally_leave_the_filter_alone(filt):
+    """`steps.between=match`: a scan between two steps is matched against the best
+    particle's map as it was at its step, and its pose is the step's (+) the matched motion.
+    The filter (steps, particles, weights) is the same as with `odometry`; the scans' motion
+    from their steps comes closer to the truth than a jittery odometry's; and a run
+    cut short gives the same online poses up to its end (causal: no later scan is used)."""
+    from slamlab.geometry import se2_between
+
+    import dataclasses
+
+    room = _room_sequence()
+    rng = np.random.default_rng(1)
+    walk = np.cumsum(rng.normal(0.0, [0.01, 0.01, 0.005], (len(room.scans), 3)), axis=0)  # jittery odometry
+    seq = dataclasses.replace(room, scans=[dataclasses.replace(f, odom=f.odom + w) for f, w in zip(room.scans, walk)])
+    keys = (f"filter={filt}", "particles=10", "matcher=likelihood", "seed=2", "steps.every=4", "filter.online=mean")
+    odo = run_slam(seq, build_components(_cfg(*keys)))
+    mat = run_slam(seq, build_components(_cfg(*keys, "steps.between=match")))
+    steps = odo.extras["step_scans"]
+    assert np.array_equal(steps, mat.extras["step_scans"])
+    assert odo.steps["neff"].tobytes() == mat.steps["neff"].tobytes()
+    assert odo.causal[steps].tobytes() == mat.causal[steps].tobytes()
+    assert odo.trajectory[steps].tobytes() == mat.trajectory[steps].tobytes()
+    between = np.setdiff1d(np.arange(steps[0], len(seq.scans)), steps)
+    anchor = steps[np.searchsorted(steps, between) - 1]
+    truth = _room_truth()
+
+    def err(r):  # the motion from each scan's step to it, against the true motion (m)
+        return np.hypot(*(se2_between(r.causal[anchor], r.causal[between]) - se2_between(truth[anchor], truth[between]))[:, :2].T).mean()
+
+    assert err(mat) < 0.5 * err(odo)
+    cut = run_slam(seq, build_components(_cfg(*keys, "steps.between=match", "steps.max_scans=41")))
+    assert cut.causal.tobytes() == mat.causal[:41].tobytes()
+
+
+def test_steps_between_is_checked():
+    from slamlab.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="steps.between"):
+        build_components(_cfg("steps.between=interpolate"))

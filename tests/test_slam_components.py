@@ -305,6 +305,31 @@ def test_tiled_coarse_grid_counts_each_yaws_window_once():
     assert half.map_reads == 2 * 25 * len(coarse) * 4 + 2 * 4 * len(fine)
 
 
+@pytest.mark.parametrize("kind", ["likelihood", "grid"])
+def test_match_scans_gives_each_scan_what_matching_it_alone_gives(kind):
+    """`match_scans` (the scans between two filter steps against one particle's map; one
+    kernel call for the likelihood matcher) gives every scan the pose, to the bit, and counts
+    the map reads that matching it alone against that particle's map gives."""
+    from slamlab.slam.tiles import TiledMaps
+
+    rng = np.random.default_rng(5)
+    maps = TiledMaps(MapSettings(resolution_m=0.05), 3, (0.0, 0.0), field_sigma_m=0.1, field_radius_m=0.3)
+    base = _corridor_scan()
+    for _ in range(3):  # three different maps
+        maps.insert_scan(rng.normal(0.0, [0.05, 0.05, 0.02], (3, 3)), base, np.zeros(2))
+    scans = [ScanPoints(xy=base[i::2] + rng.normal(0.0, 0.01, base[i::2].shape), origin=np.zeros(2)) for i in range(2)]
+    scans.append(ScanPoints(xy=base[::3], origin=np.zeros(2)))
+    poses = rng.normal(0.0, [0.06, 0.06, 0.03], (3, 3))
+    make = (lambda: LikelihoodFieldMatcher(max_gap_m=0.6)) if kind == "likelihood" else (lambda: GridMatcher(beam_step=2))
+    batch, alone = make(), make()
+    got = batch.match_scans(maps, 1, poses, scans)
+    want = np.vstack([alone.match_each(maps, poses[i:i + 1], scan, tables=maps.table[1:2])[0] for i, scan in enumerate(scans)])
+    assert got.tobytes() == want.tobytes() and batch.map_reads == alone.map_reads > 0
+    assert not np.allclose(got, poses)
+    # particle 1's map is what was matched: another particle's map moves the poses elsewhere
+    assert not np.array_equal(make().match_scans(maps, 2, poses, scans), got)
+
+
 def test_offset_grid_sizes_and_order():
     o = offset_grid(0.2, 0.05, 0.0, 0.01)
     assert o.shape == (81, 3)
@@ -328,6 +353,17 @@ def test_fill_between_steps_composes_odometry():
     est = np.array([[0, 0, np.pi / 2], [0, 2, np.pi / 2]], float)  # estimate turned by 90 deg
     full = fill_between_steps(np.array([0, 2]), est, odom)
     np.testing.assert_allclose(full[:, :2], [[0, 0], [0, 1], [0, 2], [0, 3]], atol=1e-12)
+
+
+def test_fill_between_steps_takes_a_scans_matched_motion_where_it_has_one():
+    """`motion` rows (a scan's matched motion from its step, `steps.between=match`) replace
+    the odometry since the step; NaN rows keep it."""
+    odom = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], float)
+    est = np.array([[0, 0, np.pi / 2], [0, 2, np.pi / 2]], float)
+    motion = np.full((4, 3), np.nan)
+    motion[1] = [0.9, 0.1, 0.0]  # scan 1 matched 0.9 m ahead, 0.1 m left of step 0
+    full = fill_between_steps(np.array([0, 2]), est, odom, motion)
+    np.testing.assert_allclose(full[:, :2], [[0, 0], [-0.1, 0.9], [0, 2], [0, 3]], atol=1e-12)
 
 
 def _spread_after(model: CourseMotion, step_m: float, total_m: float = 1.0, n: int = 20000) -> float:

@@ -265,8 +265,9 @@ def test_coarse_search_by_whole_cell_shifts_picks_what_placing_every_offset_pick
     out = {}
     for name, (sh, _, ya) in {"cells": (shifts, by_yaw, yaws), "every": cell_shifts(m.offsets, 0.03)}.items():
         best, scores = np.empty((n, 3)), np.empty(n)
-        tiled_field_search(maps.pool_f, maps.field_lut, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, poses,
-                           np.ascontiguousarray(scan[::3]), scan, m.offsets, sh, ya, 0.025, 0.0125, 4, m.kxy, m.kyaw, best, scores, np.empty(n, dtype=np.int64), np.zeros((0, 6)), np.zeros(0), 0.0)
+        coarse = np.ascontiguousarray(scan[::3])
+        tiled_field_search(maps.pool_f, maps.field_lut, maps.table, np.arange(n), maps.origin[0], maps.origin[1], 1.0 / maps.res, poses,
+                           coarse, np.tile([0, len(coarse)], (n, 1)), scan, np.tile([0, len(scan)], (n, 1)), m.offsets, sh, ya, 0.025, 0.0125, 4, m.kxy, m.kyaw, best, scores, np.empty(n, dtype=np.int64), np.zeros((0, 6)), np.zeros(0), 0.0)
         out[name] = (best, scores)
     assert len(cell_shifts(m.offsets, 0.03)[0]) == 0  # 0.05 m is not a whole number of 3 cm cells
     np.testing.assert_allclose(out["cells"][0], out["every"][0], rtol=0, atol=1e-12)

@@ -26,6 +26,8 @@ class StepsConfig:
     skip_static_start: bool = True  # drop the scans before the robot first moves
     max_scans: Optional[int] = None  # process only the first N scans (null = all)
     max_steps: Optional[int] = None  # stop after N processed steps, e.g. 1: the first scan's map (null = all)
+    between: str = "odometry"  # the online pose of a scan between steps: its step's (+) the `odometry` since, or the
+    # motion since as `match`ed against the best particle's map (causal; the filter itself is unchanged)
 
     def __post_init__(self) -> None:
         g = self.GROUP
@@ -38,6 +40,7 @@ class StepsConfig:
         require_bool(g, "skip_static_start", self.skip_static_start)
         require_int(g, "max_scans", self.max_scans, 1, allow_none=True)
         require_int(g, "max_steps", self.max_steps, 1, allow_none=True)
+        require_choice(g, "between", self.between, ("odometry", "match"))
 
 
 @dataclass

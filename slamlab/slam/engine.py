@@ -75,6 +75,7 @@ class Components:
     skip_static_start: bool
     max_scans: int | None
     max_steps: int | None
+    between: str
     motion: MotionModel
     weighting: Weighting
     resampler: Resampler
@@ -144,6 +145,7 @@ def run_slam(
     causal = np.empty((n_steps, 3))
     rows: dict[str, list] = {k: [] for k in ("neff", "resampled", "best_weight", "step_time_s")}
     resample_count = 0
+    between = np.full((len(scans), 3), np.nan)  # matched motion of scans between steps from their step (steps.between)
     t_loop = time.perf_counter()
     for k, si in enumerate(step_scans):
         t0 = time.perf_counter()
@@ -177,6 +179,17 @@ def run_slam(
         if k == 0:  # the first map is this scan alone, seen from the start pose
             first_scan = (points_to_world(pts.xy, poses[best]), points_to_world(pts.origin.reshape(1, 2), poses[best])[0])
         maps.update(poses, pts, best)
+        if slam and c.between == "match":
+            # the scans up to the next step, matched against the best particle's map as it is
+            # now (causal): each scan's pose is its step's (+) the matched motion since
+            nxt = step_scans[k + 1] if k + 1 < n_steps else len(scans)
+            seen = [(j, scan_to_points(scans[j], sequence.body_height_m, min_r, max_r, ms.ground_threshold_m)) for j in range(si + 1, nxt)]
+            seen = [(j, q) for j, q in seen if len(q.xy)]  # a scan with no points keeps its odometry
+            if seen:
+                js = np.array([j for j, _ in seen], dtype=np.int64)
+                pred = se2_compose(poses[best], se2_between(odom[si], odom[js]))
+                matched = maps.match_scans(c.matcher, best, pred, [q for _, q in seen])
+                between[js] = se2_between(poses[best], matched)
         last = k == n_steps - 1
         want_snapshot = replay is not None and replay.wants(k)
         if last:
@@ -235,8 +248,8 @@ def run_slam(
         log.warning("weighting underflowed %d and overflowed %d times (uniform fallback used)", underflows, overflows)
     return SlamResult(
         times=times,
-        trajectory=fill_between_steps(step_scans, smooth, odom),
-        causal=fill_between_steps(step_scans, causal, odom),
+        trajectory=fill_between_steps(step_scans, smooth, odom, between[: len(odom)]),
+        causal=fill_between_steps(step_scans, causal, odom, between[: len(odom)]),
         odometry=se2_compose(start, se2_between(odom[step_scans[0]], odom)),
         log_odds=final_map,
         steps=steps,

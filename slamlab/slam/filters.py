@@ -45,6 +45,11 @@ class ParticleMaps(ABC):
         `FilterKind.step_scale`."""
 
     @abstractmethod
+    def match_scans(self, matcher: Matcher, p: int, poses: FloatArray, scans: list[ScanPoints]) -> FloatArray:
+        """Scan-match scans[i], predicted at poses[i] (S, 3), against particle p's map (the
+        maps stay as they are); returns the matched poses (S, 3)."""
+
+    @abstractmethod
     def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
         """Add the scan to the map(s), seen from `poses` (N, 3); `best` is the top particle."""
 
@@ -82,6 +87,12 @@ class SharedMap(ParticleMaps):
     def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints, step_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
         return matcher.match(self.grid, poses, scan)
 
+    def match_scans(self, matcher: Matcher, p: int, poses: FloatArray, scans: list[ScanPoints]) -> FloatArray:
+        out = np.empty((len(scans), 3))
+        for i, scan in enumerate(scans):
+            out[i] = matcher.match(self.grid, poses[i:i + 1], scan)[0][0]
+        return out
+
     def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
         bp = poses[best]
         sensor = points_to_world(scan.origin.reshape(1, 2), bp)[0]
@@ -114,6 +125,9 @@ class PerParticleMaps(ParticleMaps):
     def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints, step_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
         # a shorter step than the reference gets a proportionally narrower prior (sigma)
         return matcher.match_each(self.maps, poses, scan, prior_scale=step_scale**2)
+
+    def match_scans(self, matcher: Matcher, p: int, poses: FloatArray, scans: list[ScanPoints]) -> FloatArray:
+        return matcher.match_scans(self.maps, p, poses, scans)
 
     def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
         if len(scan.xy) == 0:

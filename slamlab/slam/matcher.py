@@ -350,11 +350,23 @@ class Matcher(ABC):
     def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
         ...
 
-    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
+    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0,
+                   tables: np.ndarray | None = None) -> tuple[FloatArray, FloatArray]:
         """Particle i against its own map i (filter=rbpf). `prior_scale` (<= 1) scales a
         motion prior's variance (the RBPF's step normalisation); matchers without a prior
-        ignore it. A matcher that only implements `match` works with filter=course only."""
+        ignore it. `tables`: the tile tables pose i matches against (default `maps.table`,
+        every particle's). A matcher that only implements `match` works with filter=course only."""
         raise ConfigError("filter", f"{type(self).__name__} does not support filter=rbpf (no match_each)")
+
+    def match_scans(self, maps: TiledMaps, p: int, poses: FloatArray, scans: list[ScanPoints]) -> FloatArray:
+        """Scan i, predicted at poses[i] (S, 3), against particle p's map alone (the maps are
+        not changed): the matched poses (S, 3). Here one `match_each` per scan; a matcher
+        with a batched kernel overrides it."""
+        tables = maps.table[p:p + 1]
+        out = np.empty((len(scans), 3))
+        for i, scan in enumerate(scans):
+            out[i] = self.match_each(maps, poses[i:i + 1], scan, tables=tables)[0][0]
+        return out
 
     def _cell_shifts(self, res_m: float) -> tuple[np.ndarray, np.ndarray, FloatArray]:
         """`cell_shifts(self.offsets, res_m)`, computed once per map resolution (it depends on
@@ -413,12 +425,13 @@ class GridMatcher(Matcher):
         self.map_reads += len(poses) * len(self.offsets) * len(pts)
         return self._finish(poses, best, scores)
 
-    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
+    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0,
+                   tables: np.ndarray | None = None) -> tuple[FloatArray, FloatArray]:
         pts = self._points(scan)
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
         tiled_grid_search(
-            maps.pool_lo, maps.table, maps.lo_code(maps.s.occupied_threshold), maps.origin[0], maps.origin[1], 1.0 / maps.res,
+            maps.pool_lo, maps.table if tables is None else tables, maps.lo_code(maps.s.occupied_threshold), maps.origin[0], maps.origin[1], 1.0 / maps.res,
             np.ascontiguousarray(poses), pts, self.offsets, best, scores,
         )
         self.map_reads += len(poses) * len(self.offsets) * len(pts)
@@ -592,21 +605,48 @@ class LikelihoodFieldMatcher(Matcher):
         self._count_field_reads(len(poses), len(coarse), len(fine), evals, ext)
         return self._finish(poses, best, scores)
 
-    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
-        assert maps.has_field, "maps built without a likelihood field"
+    def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0,
+                   tables: np.ndarray | None = None) -> tuple[FloatArray, FloatArray]:
         coarse, fine, ext = self._points(scan)
-        best = np.empty_like(poses)
-        scores = np.empty(len(poses))
-        evals = np.empty(len(poses), dtype=np.int64)
+        n = len(poses)
+        table = maps.table if tables is None else tables
+        spans = (np.tile([0, len(coarse)], (n, 1)), np.tile([0, len(fine)], (n, 1)))  # one scan for all
+        best, scores, evals = self._search(maps, table, np.arange(n), poses, coarse, fine, ext, spans, prior_scale)
+        self._count_field_reads(n, len(coarse), len(fine), evals, ext, maps.res)
+        return self._finish(poses, best, scores)
+
+    def match_scans(self, maps: TiledMaps, p: int, poses: FloatArray, scans: list[ScanPoints]) -> FloatArray:
+        """Every scan against particle p's map in one kernel call, on all cores; each scan's
+        result is what `match_each` gives it alone."""
+        parts = [self._points(scan) for scan in scans]
+        coarse = np.concatenate([q[0] for q in parts]).reshape(-1, 2)
+        fine = np.concatenate([q[1] for q in parts]).reshape(-1, 2)
+        ext = _NO_STRETCHES
+        if any(len(q[2]) for q in parts):  # stretches for all (a scan without any: rows of none)
+            ext = np.concatenate([q[2] if len(q[2]) else np.zeros((len(q[1]), 6)) for q in parts])
+        spans = tuple(np.column_stack([at[:-1], at[1:]]) for at in (np.cumsum([0] + [len(q[k]) for q in parts]) for k in (0, 1)))
+        best, scores, evals = self._search(maps, maps.table, np.full(len(scans), p), poses, coarse, fine, ext, spans, 1.0)
+        for i, (c, f, e) in enumerate(parts):
+            self._count_field_reads(1, len(c), len(f), evals[i:i + 1], e, maps.res)
+        return self._finish(np.asarray(poses, dtype=np.float64), best, scores)[0]
+
+    def _search(self, maps: TiledMaps, table: np.ndarray, map_of: np.ndarray, poses: FloatArray, coarse: FloatArray, fine: FloatArray,
+                ext: FloatArray, spans: tuple[np.ndarray, np.ndarray], prior_scale: float) -> tuple[FloatArray, FloatArray, np.ndarray]:
+        """`tiled_field_search`: pose i on map table[map_of[i]] with the points of its spans."""
+        assert maps.has_field, "maps built without a likelihood field"
+        n = len(poses)
+        best = np.empty((n, 3))
+        scores = np.empty(n)
+        evals = np.empty(n, dtype=np.int64)
         shifts, _, yaws = self._cell_shifts(maps.res)
         lut_d, _, w_scale = self._refinement(maps.res, maps.field_lut)
         tiled_field_search(
-            maps.pool_f, maps.field_lut, maps.table, maps.origin[0], maps.origin[1], 1.0 / maps.res, np.ascontiguousarray(poses), coarse, fine,
+            maps.pool_f, maps.field_lut, table, map_of.astype(np.int64), maps.origin[0], maps.origin[1], 1.0 / maps.res,
+            np.ascontiguousarray(poses, dtype=np.float64), coarse, spans[0].astype(np.int64), fine, spans[1].astype(np.int64),
             self.offsets, shifts, yaws, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
             self.kxy / prior_scale, self.kyaw / prior_scale, best, scores, evals, ext, lut_d, w_scale,
         )
-        self._count_field_reads(len(poses), len(coarse), len(fine), evals, ext, shifts if len(shifts) == len(self.offsets) else None)
-        return self._finish(poses, best, scores)
+        return best, scores, evals
 
     def _refinement(self, res_m: float, lut: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
         """The kernels' Gauss-Newton inputs (`gauss_newton.refine_pose`) for a map of `res_m`:
@@ -644,16 +684,23 @@ class LikelihoodFieldMatcher(Matcher):
                 ext = np.ascontiguousarray(stretches[fine])
         return np.ascontiguousarray(xy[close[:: self.coarse_beam_step]]), np.ascontiguousarray(xy[fine]), ext
 
-    def _count_field_reads(self, n: int, n_coarse: int, n_fine: int, evals: np.ndarray, ext: FloatArray, shifts: np.ndarray | None = None) -> None:
+    def _count_field_reads(self, n: int, n_coarse: int, n_fine: int, evals: np.ndarray, ext: FloatArray, res_m: float | None = None) -> None:
         """Add the cells `n` particles' searches read: four per bilinear field value, except
-        that a coarse grid of whole-cell `shifts` (`tiled_match.coarse_scores_by_cells`) reads
-        each yaw's window of cells once per point."""
-        if len(self.offsets) <= 1:
-            coarse = 0
-        elif shifts is not None:
-            window = int(np.ptp(shifts[:, 0]) + 2) * int(np.ptp(shifts[:, 1]) + 2)  # (rows + 1) x (cols + 1)
-            coarse = n * len(np.unique(shifts[:, 2])) * n_coarse * window
-        else:
-            coarse = 4 * n * len(self.offsets) * n_coarse
+        that on tiled maps (`res_m` given) a coarse grid of whole-cell shifts
+        (`tiled_match.coarse_scores_by_cells`) reads each yaw's window of cells once per point."""
         samples = n_fine + int(ext[:, 2:4].sum())  # a stretch reads the field at each of its samples
-        self.map_reads += coarse + 4 * int(evals.sum()) * samples
+        self.map_reads += n * n_coarse * self._coarse_reads_per_point(res_m) + 4 * int(evals.sum()) * samples
+
+    def _coarse_reads_per_point(self, res_m: float | None) -> int:
+        """Cells the coarse grid reads per point (computed once per map resolution)."""
+        cache = self.__dict__.setdefault("_coarse_reads", {})
+        if res_m not in cache:
+            shifts = self._cell_shifts(res_m)[0] if res_m is not None else np.empty((0, 3))
+            if len(self.offsets) <= 1:
+                cache[res_m] = 0
+            elif len(shifts) == len(self.offsets):
+                window = int(np.ptp(shifts[:, 0]) + 2) * int(np.ptp(shifts[:, 1]) + 2)  # (rows + 1) x (cols + 1)
+                cache[res_m] = len(np.unique(shifts[:, 2])) * window
+            else:
+                cache[res_m] = 4 * len(self.offsets)
+        return cache[res_m]

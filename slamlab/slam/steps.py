@@ -51,12 +51,18 @@ def select_steps(
     return np.asarray(out, dtype=np.int64)
 
 
-def fill_between_steps(step_scans: np.ndarray, step_poses: FloatArray, odometry: FloatArray) -> FloatArray:
-    """(N, 3) pose for every scan: the latest processed step's pose (+) the odometry since.
+def fill_between_steps(step_scans: np.ndarray, step_poses: FloatArray, odometry: FloatArray, motion: FloatArray | None = None) -> FloatArray:
+    """(N, 3) pose for every scan: the latest processed step's pose (+) the motion since,
+    which is `motion[i]` (N, 3; the scan's matched motion from its step) where that row is
+    set (not NaN), else the odometry since the step.
 
     `step_scans` (K,) increasing scan indices, `step_poses` (K, 3) their estimates."""
     n = len(odometry)
     k = np.searchsorted(step_scans, np.arange(n), side="right") - 1
     k = np.clip(k, 0, len(step_scans) - 1)  # scans before the first step use step 0
     anchor = step_scans[k]
-    return se2_compose(step_poses[k], se2_between(odometry[anchor], odometry))
+    since = se2_between(odometry[anchor], odometry)
+    if motion is not None:
+        known = ~np.isnan(motion[:, 0])
+        since[known] = motion[known]
+    return se2_compose(step_poses[k], since)

@@ -298,23 +298,30 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
 
 
 @numba.njit(cache=True, parallel=True)
-def tiled_field_search(pool_f, lut, table, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals, ext, lut_d, w_scale):
-    """Per particle i, coarse-to-fine likelihood-field matching on its own map `table[i]`;
-    `out_evals[i]`: the refinement's scores of `fine_pts` (for the map-read count). `ext`:
-    the fine points' stretches (`matcher.surface_stretches`; no rows = none). `lut_d` (d in
-    cells per field code; empty = hill climb) and `w_scale` (1 / sigma^2, cells): the
-    Gauss-Newton refinement (`gauss_newton`) instead of the hill climb."""
+def tiled_field_search(pool_f, lut, table, map_of, ox, oy, inv_res, poses, coarse_pts, coarse_span, fine_pts, fine_span, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals, ext, lut_d, w_scale):
+    """Per pose i, coarse-to-fine likelihood-field matching on the map `table[map_of[i]]` of
+    the points rows coarse_span[i, 0]:coarse_span[i, 1] of `coarse_pts` (coarse grid) and
+    fine_span[i, 0]:fine_span[i, 1] of `fine_pts` (climb). A filter step matches particle i
+    against its own map i, all with the same scan's points; the scans between two steps are
+    matched each with its own points against one particle's map (every map_of[i] the same).
+    `out_evals[i]`: the refinement's scores of the fine points (for the map-read count).
+    `ext`: the fine points' stretches (`matcher.surface_stretches`, rows as `fine_pts`; no
+    rows = none). `lut_d` (d in cells per field code; empty = hill climb) and `w_scale`
+    (1 / sigma^2, cells): the Gauss-Newton refinement (`gauss_newton`) instead of the hill
+    climb."""
     # the field's values as float64 once: each read then skips a float32 -> float64 conversion
     # (the same values, so the same sums; 8 % off the search on Intel)
     lut64 = lut.astype(np.float64)
     for i in numba.prange(poses.shape[0]):
+        f0 = fine_span[i, 0]
+        f1 = fine_span[i, 1]
         bx, by, bt, cur, n_eval = _climb(
-            pool_f, lut64, table[i], ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2],
-            coarse_pts, fine_pts, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, ext, lut_d, w_scale,
+            pool_f, lut64, table[map_of[i]], ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2],
+            coarse_pts[coarse_span[i, 0]:coarse_span[i, 1]], fine_pts[f0:f1], offsets, shifts, yaws, lin_step, ang_step,
+            levels, kxy, kyaw, ext[f0:f1] if ext.shape[0] > 0 else ext, lut_d, w_scale,
         )
         out_poses[i, 0] = bx
         out_poses[i, 1] = by
         out_poses[i, 2] = bt
         out_scores[i] = cur
         out_evals[i] = n_eval
-
