@@ -146,8 +146,9 @@ def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> RunMet
         # overflowed (exp(corr) = inf) and uniform weights took over
         weighting_underflows=int(result.extras.get("weighting_underflows", 0)),
         weighting_overflows=int(result.extras.get("weighting_overflows", 0)),
-        # map cells the matcher read (bilinear field value = 4, hit test = 1): at ~1 ns a read,
-        # the least time any kernel doing this search needs
+        # map cells the matcher read (bilinear field value = 4, hit test = 1; the RBPF's coarse
+        # grid of whole-cell shifts: each yaw's window once per point): at ~1 ns a read, a floor
+        # under the matcher's CPU time
         matcher_map_reads=int(result.extras.get("matcher_map_reads", 0)),
         # MB held by the map(s): shared tiles counted once (rbpf); at the end and at peak
         map_memory={k: v for k, v in result.extras.items() if k.startswith("map_")},

@@ -305,11 +305,13 @@ def test_tiled_coarse_grid_counts_each_yaws_window_once():
     assert half.map_reads == 2 * 25 * len(coarse) * 4 + 2 * 4 * len(fine)
 
 
-@pytest.mark.parametrize("kind", ["likelihood", "grid"])
+@pytest.mark.parametrize("kind", ["likelihood", "stretch", "grid"])
 def test_match_scans_gives_each_scan_what_matching_it_alone_gives(kind):
     """`match_scans` (the scans between two filter steps against one particle's map; one
     kernel call for the likelihood matcher) gives every scan the pose, to the bit, and counts
-    the map reads that matching it alone against that particle's map gives."""
+    the map reads that matching it alone against that particle's map gives; with
+    `isolated=stretch` also when some scans of the batch have stretches and some none. (The
+    grid matcher has no batched kernel: its loop is the reference, checked for the map.)"""
     from slamlab.slam.tiles import TiledMaps
 
     rng = np.random.default_rng(5)
@@ -319,8 +321,14 @@ def test_match_scans_gives_each_scan_what_matching_it_alone_gives(kind):
         maps.insert_scan(rng.normal(0.0, [0.05, 0.05, 0.02], (3, 3)), base, np.zeros(2))
     scans = [ScanPoints(xy=base[i::2] + rng.normal(0.0, 0.01, base[i::2].shape), origin=np.zeros(2)) for i in range(2)]
     scans.append(ScanPoints(xy=base[::3], origin=np.zeros(2)))
-    poses = rng.normal(0.0, [0.06, 0.06, 0.03], (3, 3))
-    make = (lambda: LikelihoodFieldMatcher(max_gap_m=0.6)) if kind == "likelihood" else (lambda: GridMatcher(beam_step=2))
+    scans.append(ScanPoints(xy=np.column_stack([np.linspace(1.0, 3.0, 41), np.full(41, 1.0)]), origin=np.zeros(2)))  # a wall: no lone hit
+    poses = rng.normal(0.0, [0.06, 0.06, 0.03], (4, 3))
+    make = {"likelihood": lambda: LikelihoodFieldMatcher(max_gap_m=0.6),
+            "stretch": lambda: LikelihoodFieldMatcher(max_gap_m=0.6, isolated="stretch"),
+            "grid": lambda: GridMatcher(beam_step=2)}[kind]
+    if kind == "stretch":  # the batch mixes scans with stretches and one without
+        has = [len(make()._points(scan)[2]) > 0 for scan in scans]
+        assert any(has) and not all(has)
     batch, alone = make(), make()
     got = batch.match_scans(maps, 1, poses, scans)
     want = np.vstack([alone.match_each(maps, poses[i:i + 1], scan, tables=maps.table[1:2])[0] for i, scan in enumerate(scans)])
@@ -328,6 +336,7 @@ def test_match_scans_gives_each_scan_what_matching_it_alone_gives(kind):
     assert not np.allclose(got, poses)
     # particle 1's map is what was matched: another particle's map moves the poses elsewhere
     assert not np.array_equal(make().match_scans(maps, 2, poses, scans), got)
+    assert make().match_scans(maps, 1, poses[:0], []).shape == (0, 3)
 
 
 def test_offset_grid_sizes_and_order():

@@ -26,8 +26,9 @@ class StepsConfig:
     skip_static_start: bool = True  # drop the scans before the robot first moves
     max_scans: Optional[int] = None  # process only the first N scans (null = all)
     max_steps: Optional[int] = None  # stop after N processed steps, e.g. 1: the first scan's map (null = all)
-    between: str = "odometry"  # the online pose of a scan between steps: its step's (+) the `odometry` since, or the
-    # motion since as `match`ed against the best particle's map (causal; the filter itself is unchanged)
+    between: str = "odometry"  # the pose of a scan between steps (online and smoothed path): its step's (+) the
+    # `odometry` since, or the motion since as `match`ed against the step's best particle's map (mode slam only;
+    # causal; the filter itself is unchanged)
 
     def __post_init__(self) -> None:
         g = self.GROUP

@@ -15,6 +15,10 @@ Per processed step (see `steps.select_steps`):
    shared log-odds grid; `rbpf` ray-casts every particle's scan into its own map;
 4. resample (`resampler/`) when N_eff = 1 / sum(w^2) < threshold * N (under `rbpf` the
    children share their parent's map tiles until they write).
+Scans between two steps are not filtered: each gets its step's pose (+) the odometry since,
+or (`steps.between=match`, mode slam) the motion since as matched against the best
+particle's map right after step 3 (the map as it was then: causal; particles, weights and
+maps are not changed).
 Each particle's pose per step and its parent index are kept, so the final best particle's
 own path (its ancestry) is the smoothed trajectory; the online (causal) estimate is, at each
 step, the best particle or the particles' weighted mean (`filter.online`). `mode: odometry` skips 1, 2 and 4:
@@ -187,7 +191,10 @@ def run_slam(
             seen = [(j, q) for j, q in seen if len(q.xy)]  # a scan with no points keeps its odometry
             if seen:
                 js = np.array([j for j, _ in seen], dtype=np.int64)
-                pred = se2_compose(poses[best], se2_between(odom[si], odom[js]))
+                since = se2_between(odom[si], odom[js])
+                if scales is not None:  # the best particle's learnt odometry scale, as its steps use
+                    since[:, :2] *= scales[best]
+                pred = se2_compose(poses[best], since)
                 matched = maps.match_scans(c.matcher, best, pred, [q for _, q in seen])
                 between[js] = se2_between(poses[best], matched)
         last = k == n_steps - 1
@@ -256,7 +263,7 @@ def run_slam(
         particles=n,
         resample_count=resample_count,
         runtime_s=runtime,
-        fill="odometry",
+        fill=c.between if slam else "odometry",
         particle_history=None if hist_w is None else ParticleHistory(hist_poses, hist_w, hist_parent, steps["resampled"].astype(bool)),
         first_scan_xy=first_scan[0],
         first_scan_origin=first_scan[1],

@@ -610,6 +610,7 @@ class LikelihoodFieldMatcher(Matcher):
         coarse, fine, ext = self._points(scan)
         n = len(poses)
         table = maps.table if tables is None else tables
+        assert len(table) == n, "one tile table per pose"  # the kernel reads table[i] unchecked
         spans = (np.tile([0, len(coarse)], (n, 1)), np.tile([0, len(fine)], (n, 1)))  # one scan for all
         best, scores, evals = self._search(maps, table, np.arange(n), poses, coarse, fine, ext, spans, prior_scale)
         self._count_field_reads(n, len(coarse), len(fine), evals, ext, maps.res)
@@ -618,6 +619,8 @@ class LikelihoodFieldMatcher(Matcher):
     def match_scans(self, maps: TiledMaps, p: int, poses: FloatArray, scans: list[ScanPoints]) -> FloatArray:
         """Every scan against particle p's map in one kernel call, on all cores; each scan's
         result is what `match_each` gives it alone."""
+        if not scans:
+            return np.empty((0, 3))
         parts = [self._points(scan) for scan in scans]
         coarse = np.concatenate([q[0] for q in parts]).reshape(-1, 2)
         fine = np.concatenate([q[1] for q in parts]).reshape(-1, 2)

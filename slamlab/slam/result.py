@@ -38,7 +38,9 @@ class SlamResult:
     - `times` (N,) scan times (s), file order.
     - `trajectory` (N, 3): the final best particle's own path through its ancestry
       (smoothed), scans between processed steps filled by that particle's pose composed
-      with the odometry since (`fill` names the method).
+      with the motion since: the odometry's, or (`steps.between=match`) the scan's motion
+      from its step as matched against that step's best particle's map (`fill` names the
+      method: "odometry" or "match").
     - `causal` (N, 3): the online estimate (`filter.online`: the best particle, or the
       particles' weighted mean, at each step), filled the same way.
     - `odometry` (N, 3): the raw odometry poses, shifted to start at the first estimate.

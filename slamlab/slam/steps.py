@@ -5,7 +5,9 @@ changes, keeping the last static one so the first map is built at rest), then ta
 k-th scan, or, when `min_distance_m` or `min_angle_rad` is > 0, a scan once the odometry
 path since the last processed scan is that long (m) or has turned that much (rad).
 Filling: a scan between processed steps k and k+1 gets the pose of step k composed with
-the odometry increment since step k's scan (scans before the first step likewise, backwards).
+the motion since step k's scan: the odometry increment, or the scan's matched motion where
+the engine has one (`steps.between=match`); scans before the first step take the odometry,
+backwards.
 """
 
 from __future__ import annotations
