@@ -629,8 +629,9 @@ class LikelihoodFieldMatcher(Matcher):
             ext = np.concatenate([q[2] if len(q[2]) else np.zeros((len(q[1]), 6)) for q in parts])
         spans = tuple(np.column_stack([at[:-1], at[1:]]) for at in (np.cumsum([0] + [len(q[k]) for q in parts]) for k in (0, 1)))
         best, scores, evals = self._search(maps, maps.table, np.full(len(scans), p), poses, coarse, fine, ext, spans, 1.0)
-        for i, (c, f, e) in enumerate(parts):
-            self._count_field_reads(1, len(c), len(f), evals[i:i + 1], e, maps.res)
+        # the reads of each scan as `_count_field_reads` counts them, summed
+        samples = np.array([len(f) + int(e[:, 2:4].sum()) for _, f, e in parts], dtype=np.int64)
+        self.map_reads += len(coarse) * self._coarse_reads_per_point(maps.res) + 4 * int((evals * samples).sum())
         return self._finish(np.asarray(poses, dtype=np.float64), best, scores)[0]
 
     def _search(self, maps: TiledMaps, table: np.ndarray, map_of: np.ndarray, poses: FloatArray, coarse: FloatArray, fine: FloatArray,

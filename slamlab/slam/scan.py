@@ -14,6 +14,7 @@ the floor is below `ground_threshold_m` (they hit the ground, not a wall).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -49,14 +50,23 @@ def scan_to_points(
     keep = frame.valid & np.isfinite(r) & (r >= min_range_m) & (r <= max_range_m)
     r, a = r[keep], a[keep]
     height = 0.0 if body_height_m is None else float(body_height_m)
-    # the body at the origin with zero yaw: particles add x, y, theta later, in 2D
-    T = body_to_world(0.0, 0.0, 0.0, frame.roll, frame.pitch, height) @ np.asarray(frame.lidar_to_body, dtype=np.float64)
+    T = _lidar_in_body_yaw(float(frame.roll), float(frame.pitch), height, np.asarray(frame.lidar_to_body, dtype=np.float64).tobytes())
     p = np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
     # transform of (x, y, 0): only the first two columns of the rotation matter
     pts = p @ T[:3, :2].T + T[:3, 3]
     if body_height_m is not None:
         pts = pts[pts[:, 2] > ground_threshold_m]
     return ScanPoints(xy=np.ascontiguousarray(pts[:, :2]), origin=T[:2, 3].copy())
+
+
+@lru_cache(maxsize=16)
+def _lidar_in_body_yaw(roll: float, pitch: float, height_m: float, lidar_to_body: bytes) -> FloatArray:
+    """4x4 pose of the lidar in the body-yaw frame (the body at the origin with zero yaw:
+    particles add x, y, theta later, in 2D). Cached: a planar log's scans all share one (the
+    engine projects every scan, ~10,000 on Intel), a THOR walk's change with the IMU."""
+    T = body_to_world(0.0, 0.0, 0.0, roll, pitch, height_m) @ np.frombuffer(lidar_to_body, dtype=np.float64).reshape(4, 4)
+    T.flags.writeable = False  # shared between calls
+    return T
 
 
 def range_limits(settings: MapSettings, sequence: Sequence) -> tuple[float, float]:
