@@ -149,7 +149,8 @@ def run_slam(
     causal = np.empty((n_steps, 3))
     rows: dict[str, list] = {k: [] for k in ("neff", "resampled", "best_weight", "step_time_s")}
     resample_count = 0
-    between = np.full((len(scans), 3), np.nan)  # matched motion of scans between steps from their step (steps.between)
+    # steps.between=match: the matched motion of each scan between steps from its step (NaN: none)
+    between = np.full((len(scans), 3), np.nan) if slam and c.between == "match" else None
     t_loop = time.perf_counter()
     for k, si in enumerate(step_scans):
         t0 = time.perf_counter()
@@ -183,7 +184,7 @@ def run_slam(
         if k == 0:  # the first map is this scan alone, seen from the start pose
             first_scan = (points_to_world(pts.xy, poses[best]), points_to_world(pts.origin.reshape(1, 2), poses[best])[0])
         maps.update(poses, pts, best)
-        if slam and c.between == "match":
+        if between is not None:
             # the scans up to the next step, matched against the best particle's map as it is
             # now (causal): each scan's pose is its step's (+) the matched motion since
             nxt = step_scans[k + 1] if k + 1 < n_steps else len(scans)
@@ -239,6 +240,8 @@ def run_slam(
     # `best` indexes the last step's particles before resampling (the set hist_poses[-1]
     # holds); after a resample the weights are uniform and no longer say who was best.
     smooth = ancestral_path(hist_poses, hist_parent, best)
+    if between is not None:
+        between = between[: len(odom)]  # a run stopped early keeps its scans up to the stop
 
     steps = Table(
         {
@@ -255,15 +258,15 @@ def run_slam(
         log.warning("weighting underflowed %d and overflowed %d times (uniform fallback used)", underflows, overflows)
     return SlamResult(
         times=times,
-        trajectory=fill_between_steps(step_scans, smooth, odom, between[: len(odom)]),
-        causal=fill_between_steps(step_scans, causal, odom, between[: len(odom)]),
+        trajectory=fill_between_steps(step_scans, smooth, odom, between),
+        causal=fill_between_steps(step_scans, causal, odom, between),
         odometry=se2_compose(start, se2_between(odom[step_scans[0]], odom)),
         log_odds=final_map,
         steps=steps,
         particles=n,
         resample_count=resample_count,
         runtime_s=runtime,
-        fill=c.between if slam else "odometry",
+        fill="odometry" if between is None else "match",
         particle_history=None if hist_w is None else ParticleHistory(hist_poses, hist_w, hist_parent, steps["resampled"].astype(bool)),
         first_scan_xy=first_scan[0],
         first_scan_origin=first_scan[1],

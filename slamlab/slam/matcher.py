@@ -332,6 +332,12 @@ def cell_shifts(offsets: FloatArray, res_m: float) -> tuple[np.ndarray, np.ndarr
     return shifts, by_yaw, yaws
 
 
+def _fine_samples(n_fine: int, ext: FloatArray) -> int:
+    """Field values one climb score reads: one per fine point, and a stretch (`ext` row) one
+    per sample along it."""
+    return n_fine + int(ext[:, 2:4].sum())
+
+
 class Matcher(ABC):
     """Interface: `match(grid, poses (N,3), scan) -> (poses (N,3), scores (N,))` against one
     shared map, and `match_each(maps, poses, scan)` where particle i matches against its own
@@ -630,7 +636,7 @@ class LikelihoodFieldMatcher(Matcher):
         spans = tuple(np.column_stack([at[:-1], at[1:]]) for at in (np.cumsum([0] + [len(q[k]) for q in parts]) for k in (0, 1)))
         best, scores, evals = self._search(maps, maps.table, np.full(len(scans), p), poses, coarse, fine, ext, spans, 1.0)
         # the reads of each scan as `_count_field_reads` counts them, summed
-        samples = np.array([len(f) + int(e[:, 2:4].sum()) for _, f, e in parts], dtype=np.int64)
+        samples = np.array([_fine_samples(len(f), e) for _, f, e in parts], dtype=np.int64)
         self.map_reads += len(coarse) * self._coarse_reads_per_point(maps.res) + 4 * int((evals * samples).sum())
         return self._finish(np.asarray(poses, dtype=np.float64), best, scores)[0]
 
@@ -692,8 +698,7 @@ class LikelihoodFieldMatcher(Matcher):
         """Add the cells `n` particles' searches read: four per bilinear field value, except
         that on tiled maps (`res_m` given) a coarse grid of whole-cell shifts
         (`tiled_match.coarse_scores_by_cells`) reads each yaw's window of cells once per point."""
-        samples = n_fine + int(ext[:, 2:4].sum())  # a stretch reads the field at each of its samples
-        self.map_reads += n * n_coarse * self._coarse_reads_per_point(res_m) + 4 * int(evals.sum()) * samples
+        self.map_reads += n * n_coarse * self._coarse_reads_per_point(res_m) + 4 * int(evals.sum()) * _fine_samples(n_fine, ext)
 
     def _coarse_reads_per_point(self, res_m: float | None) -> int:
         """Cells the coarse grid reads per point (computed once per map resolution)."""

@@ -2,8 +2,9 @@
 
 The same two searches as `matcher.py` (hit counting over an offset grid; likelihood field
 with a coarse grid and hill climbing), but pose i reads its own map through its tile table
-(a filter step: particle i's map; the scans between steps: all the best particle's): a cell read is `pool[table[i, r >> 5, c >> 5], r & 31, c & 31]` (a field cell is a
-one-byte code, decoded as `lut[code]`: see `tiles.py`). Particles are
+(a filter step: particle i's map; the scans between steps: all the best particle's): a cell
+read is `pool[table[i, r >> 5, c >> 5], r & 31, c & 31]` (a field cell is a one-byte code,
+decoded as `lut[code]`: see `tiles.py`). Particles are
 independent, so the outer loop runs on all cores (`numba.prange`); each particle's result
 depends only on its own inputs, so results do not depend on the number of threads.
 
