@@ -297,6 +297,11 @@ def test_coarse_sums_by_whole_cell_shifts_equal_scoring_every_offset_up_to_the_m
             pt = pose[2]
             sums = coarse_scores_by_cells(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px, py, pt, pts, shifts, yaws)
             r_lo, c_lo = shifts[:, 0].min(), shifts[:, 1].min()
+            # both of the kernel's row reads are checked: windows within one tile column and across two
+            u = (px + np.cos(pt) * pts[:, 0] - np.sin(pt) * pts[:, 1] - maps.origin[0]) / RES - 0.5
+            first_col = (np.floor(u).astype(int) + c_lo) & 31
+            across = first_col + (shifts[:, 1].max() - c_lo + 1) > 31
+            assert across.any() and not across.all()
             for k, (dx, dy, dyaw) in enumerate(offsets):
                 want = tiled_score_field(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px + dx, py + dy, pt + dyaw, pts)
                 got = sums[shifts[k, 2], shifts[k, 0] - r_lo, shifts[k, 1] - c_lo]

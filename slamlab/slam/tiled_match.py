@@ -151,8 +151,9 @@ def coarse_scores_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, pts, s
     min row shift, shifts[k, 1] - min col shift]; boxes no offset uses are never read).
 
     For each yaw offset a point is placed once (cell, bilinear weights) and the map window
-    all its x/y shifts touch is read once into `win`; each window row is interpolated in x
-    once (`hx`), and every shift's bilinear value comes from two of those. Each offset's sum
+    all its x/y shifts touch is read once, a row at a time, each row interpolated in x as it
+    is read (`hx`; a row within one tile, nearly always, looks its tile up once); every
+    shift's bilinear value comes from two of those. Each offset's sum
     adds its points in the same order with the same terms as `tiled_score_field`, so it is
     that sum (up to the last bits of the placement: the shift is added in cells, not metres)."""
     H = tab.shape[0] << TILE_SHIFT
@@ -177,16 +178,27 @@ def coarse_scores_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, pts, s
             r0 = rb + r_lo  # the window's first cell
             c0 = cb + c_lo
             inside = r0 >= 0 and c0 >= 0 and r0 + ny + 1 <= H and c0 + nx + 1 <= W
+            ic0 = c0 & TILE_MASK
+            one_tile_col = inside and ic0 + nx <= TILE_MASK  # every window row lies in one tile
             for dr in range(ny + 1):
                 r = r0 + dr
-                for dc in range(nx + 1):
-                    cc = c0 + dc
-                    if inside or (0 <= r < H and 0 <= cc < W):
-                        win[dr, dc] = lut[tile_cell(pool_f, tab, r, cc)]
-                    else:
-                        win[dr, dc] = 0.0
-                for dc in range(nx):
-                    hx[dr, dc] = (1.0 - fu) * win[dr, dc] + fu * win[dr, dc + 1]
+                if one_tile_col:  # the row's tile looked up once (nearly always)
+                    t = tab[r >> TILE_SHIFT, c0 >> TILE_SHIFT]
+                    ir = r & TILE_MASK
+                    left = lut[pool_f[t, ir, ic0]]
+                    for dc in range(nx):
+                        right = lut[pool_f[t, ir, ic0 + dc + 1]]
+                        hx[dr, dc] = (1.0 - fu) * left + fu * right
+                        left = right
+                else:
+                    for dc in range(nx + 1):
+                        cc = c0 + dc
+                        if inside or (0 <= r < H and 0 <= cc < W):
+                            win[dr, dc] = lut[tile_cell(pool_f, tab, r, cc)]
+                        else:
+                            win[dr, dc] = 0.0
+                    for dc in range(nx):
+                        hx[dr, dc] = (1.0 - fu) * win[dr, dc] + fu * win[dr, dc + 1]
             if inside:  # every shift's 2 x 2 cells lie on the map (nearly always)
                 for y0 in range(ny):
                     for x0 in range(nx):
