@@ -10,9 +10,10 @@ keeps a copy of the inputs of `--sample` calls, spread over the run, of each ker
 - `map update`: `tiles.insert_scans` (every particle's ray cast and likelihood-field update).
 Each kept call is then replayed `--repeat` times on fresh copies of its inputs, with
 `--threads` numba threads, and its fastest time taken; the table gives the sum over the kept
-calls of those minima (ms), and that per call times the run's number of calls (`whole run
-s`: the kernel's share of the run at that speed). `same` says whether every replay wrote
-what the run's own call wrote, byte for byte (a kernel's result depends only on its inputs).
+calls of those minima (ms), and that per call times the number of calls in the run of
+`--scans` scans (`run s`: the kernel's share of that run at that speed). `same` says
+whether every replay wrote what the run's own call wrote, byte for byte (a kernel's result
+depends only on its inputs).
 
 Why this and not only `bench_speed.py`: on this shared 2-core machine whole runs spread by
 10-20 % from one run to the next, more than most kernel changes move them; the fastest of
@@ -149,7 +150,7 @@ def main() -> None:
 
     numba.set_num_threads(a.threads)
     print(f"{a.log}, first {a.scans} scans of +experiment=lidar2d; {a.threads} thread(s), fastest of {a.repeat} replays per kept call")
-    print(f"{'kernel':<18} {'run calls':>9} {'kept':>5} {'poses/call':>10} {'kept ms':>9} {'ms/call':>8} {'whole run s':>11}  same")
+    print(f"{'kernel':<18} {'run calls':>9} {'kept':>5} {'poses/call':>10} {'kept ms':>9} {'ms/call':>8} {'run s':>7}  same")
     for key, kernel in (("steps", search), ("between", search), ("update", update)):
         rec = recs[key]
         if not rec.kept:
@@ -157,7 +158,7 @@ def main() -> None:
         total, same = replay(kernel, rec, a.repeat)
         poses = np.mean([len(args[7] if key != "update" else args[9]) for args, _ in rec.kept])  # poses / particles updated
         per_call = total / len(rec.kept)
-        print(f"{rec.name:<18} {counts[key]:>9} {len(rec.kept):>5} {poses:>10.1f} {total * 1e3:>9.1f} {per_call * 1e3:>8.2f} {per_call * counts[key]:>11.2f}  {'yes' if same else 'NO'}")
+        print(f"{rec.name:<18} {counts[key]:>9} {len(rec.kept):>5} {poses:>10.1f} {total * 1e3:>9.1f} {per_call * 1e3:>8.2f} {per_call * counts[key]:>7.2f}  {'yes' if same else 'NO'}")
 
 
 if __name__ == "__main__":
