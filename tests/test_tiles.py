@@ -297,11 +297,15 @@ def test_coarse_sums_by_whole_cell_shifts_equal_scoring_every_offset_up_to_the_m
             pt = pose[2]
             sums = coarse_scores_by_cells(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px, py, pt, pts, shifts, yaws)
             r_lo, c_lo = shifts[:, 0].min(), shifts[:, 1].min()
-            # both of the kernel's row reads are checked: windows within one tile column and across two
+            # both of the kernel's row reads are checked: on-map windows within one tile column and across two
             u = (px + np.cos(pt) * pts[:, 0] - np.sin(pt) * pts[:, 1] - maps.origin[0]) / RES - 0.5
-            first_col = (np.floor(u).astype(int) + c_lo) & 31
-            across = first_col + (shifts[:, 1].max() - c_lo + 1) > 31
-            assert across.any() and not across.all()
+            v = (py + np.sin(pt) * pts[:, 0] + np.cos(pt) * pts[:, 1] - maps.origin[1]) / RES - 0.5
+            c0, r0 = np.floor(u).astype(int) + c_lo, np.floor(v).astype(int) + r_lo
+            nx, ny = shifts[:, 1].max() - c_lo + 1, shifts[:, 0].max() - r_lo + 1
+            H, W = np.array(maps.table.shape[1:]) * 32
+            inside = (r0 >= 0) & (c0 >= 0) & (r0 + ny + 1 <= H) & (c0 + nx + 1 <= W)
+            across = (c0 & 31) + nx > 31
+            assert (inside & across).any() and (inside & ~across).any()
             for k, (dx, dy, dyaw) in enumerate(offsets):
                 want = tiled_score_field(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px + dx, py + dy, pt + dyaw, pts)
                 got = sums[shifts[k, 2], shifts[k, 0] - r_lo, shifts[k, 1] - c_lo]
