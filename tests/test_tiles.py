@@ -1,6 +1,7 @@
 """Copy-on-write tiled maps (slamlab.slam.tiles): isolation between particles, sharing after
 resampling, memory counted once, and the same cell values as the dense grid."""
 
+import math
 import sys
 
 import numpy as np
@@ -307,9 +308,39 @@ def test_coarse_sums_by_whole_cell_shifts_equal_scoring_every_offset_up_to_the_m
             across = (c0 & 31) + nx > 31
             assert (inside & across).any() and (inside & ~across).any()
             for k, (dx, dy, dyaw) in enumerate(offsets):
-                want = tiled_score_field(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px + dx, py + dy, pt + dyaw, pts)
+                want = tiled_score_field(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px + dx, py + dy, pt + dyaw, pts, np.empty((4, len(pts))))
                 got = sums[shifts[k, 2], shifts[k, 0] - r_lo, shifts[k, 1] - c_lo]
                 assert got == pytest.approx(want, rel=1e-12, abs=1e-12), (field, pose, k)
+
+
+def test_the_two_pass_field_score_is_the_point_by_point_sum_to_the_bit():
+    """`tiled_score_field` places every point first and reads the field after; its sum must
+    be the one a point-by-point loop (`_field_at`: place, read, add) gives, bit for bit, on
+    the map, across tile borders and off the map's edge, with scratch longer than the points."""
+    from slamlab.slam.tiled_match import _field_at, tiled_score_field
+
+    rng = np.random.default_rng(11)
+    maps = TiledMaps(SETTINGS, 1, field_sigma_m=0.1, field_radius_m=0.3)
+    maps.insert_scan(np.zeros((1, 3)), *_scan(rng, m=200, max_r=6.0))
+    pts, _ = _scan(rng, m=300, max_r=9.0)  # some off the map
+    tab = maps.table[0]
+    H, W = tab.shape[0] * 32, tab.shape[1] * 32
+    lut = maps.field_lut.astype(np.float64)
+    inv = 1.0 / RES
+    work = np.full((4, len(pts) + 7), np.nan)
+    half = tab.shape[0] * 32 * RES / 2
+    for pose in rng.normal(0.0, [0.3, 0.3, 0.5], (20, 3)):
+        x, y, th = maps.origin[0] + half + pose[0], maps.origin[1] + half + pose[1], pose[2]
+        c, s_ = math.cos(th), math.sin(th)  # as the kernel computes them (libm)
+        want, read = 0.0, 0
+        for p in pts:
+            u = (x + c * p[0] - s_ * p[1] - maps.origin[0]) * inv - 0.5
+            v = (y + s_ * p[0] + c * p[1] - maps.origin[1]) * inv - 0.5
+            want += _field_at(maps.pool_f, lut, tab, H, W, u, v)
+            read += 0 <= u < W - 1 and 0 <= v < H - 1
+        assert 0 < read < len(pts)  # both the map and off it
+        got = tiled_score_field(maps.pool_f, lut, tab, maps.origin[0], maps.origin[1], inv, x, y, th, pts, work)
+        assert got == want and got > 0
 
 
 def test_reference_counts_after_inserts_equal_a_full_recount():

@@ -44,21 +44,24 @@ def tiled_score_hits(pool_lo, tab, thresh, ox, oy, inv_res, x, y, th, pts):
 
 
 @numba.njit(cache=True)
-def tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts):
-    """Sum of the likelihood field (bilinear between cell centres) at the points."""
+def tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts, work):
+    """Sum of the likelihood field (bilinear between cell centres) at the points.
+
+    Two passes: the points' places first (`place_points`, arithmetic alone, which the
+    compiler vectorises), then the reads, summed in the points' order. `work` (4, >= M) is
+    scratch. About a tenth faster than placing and reading each point in turn (the hill
+    climb, Intel), with the same sum to the bit."""
     H = tab.shape[0] << TILE_SHIFT
     W = tab.shape[1] << TILE_SHIFT
-    c = math.cos(th)
-    s = math.sin(th)
+    place_points(x, y, th, pts, ox, oy, inv_res, work)
     total = 0.0
     for i in range(pts.shape[0]):
-        _, _, u, v = field_place(x, y, c, s, pts[i, 0], pts[i, 1], ox, oy, inv_res)
-        c0 = int(math.floor(u))
-        r0 = int(math.floor(v))
+        c0 = int(work[0, i])
+        r0 = int(work[1, i])
         if c0 < 0 or r0 < 0 or c0 + 1 >= W or r0 + 1 >= H:
             continue
-        fu = u - c0
-        fv = v - r0
+        fu = work[2, i]
+        fv = work[3, i]
         ir = r0 & TILE_MASK
         ic = c0 & TILE_MASK
         if ir != TILE_MASK and ic != TILE_MASK:  # the 2 x 2 cells lie in one tile (31 times in 32)
@@ -74,6 +77,24 @@ def tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts):
             f11 = lut[tile_cell(pool_f, tab, r0 + 1, c0 + 1)]
         total += (1.0 - fv) * ((1.0 - fu) * f00 + fu * f01) + fv * ((1.0 - fu) * f10 + fu * f11)
     return total
+
+
+@numba.njit(cache=True)
+def place_points(x, y, th, pts, ox, oy, inv_res, work):
+    """Where the points (M, 2, body-yaw frame) fall with the body at (x, y, th), as
+    `field_place` puts them: work[0] / work[1] the cell column / row of the bilinear read's
+    first cell (floor of u / v, as floats), work[2] / work[3] the fractions u - floor(u) and
+    v - floor(v)."""
+    c = math.cos(th)
+    s = math.sin(th)
+    for i in range(pts.shape[0]):
+        _, _, u, v = field_place(x, y, c, s, pts[i, 0], pts[i, 1], ox, oy, inv_res)
+        fc = math.floor(u)
+        fr = math.floor(v)
+        work[0, i] = fc
+        work[1, i] = fr
+        work[2, i] = u - fc
+        work[3, i] = v - fr
 
 
 @numba.njit(cache=True, inline="always")
@@ -118,11 +139,11 @@ def tiled_score_stretches(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts, ext)
 
 
 @numba.njit(cache=True)
-def _score_fine(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts, ext):
+def _score_fine(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts, ext, work):
     """The hill climb's score: `tiled_score_stretches` when `ext` has a row per point, else `tiled_score_field`."""
     if ext.shape[0] == pts.shape[0] and ext.shape[0] > 0:
         return tiled_score_stretches(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts, ext)
-    return tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts)
+    return tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts, work)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -238,6 +259,7 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
     bx = px
     by = py
     bt = pt
+    work = np.empty((4, max(coarse_pts.shape[0], fine_pts.shape[0])))  # tiled_score_field's scratch
     if offsets.shape[0] > 1 and shifts.shape[0] == offsets.shape[0]:
         bk = _coarse_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, offsets, shifts, yaws, kxy, kyaw)
         bx += offsets[bk, 0]
@@ -247,7 +269,7 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
         best = -1e300
         bk = 0
         for k in range(offsets.shape[0]):
-            sc = tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, px + offsets[k, 0], py + offsets[k, 1], pt + offsets[k, 2], coarse_pts)
+            sc = tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, px + offsets[k, 0], py + offsets[k, 1], pt + offsets[k, 2], coarse_pts, work)
             sc -= kxy * (offsets[k, 0] ** 2 + offsets[k, 1] ** 2) + kyaw * offsets[k, 2] ** 2
             if sc > best:
                 best = sc
@@ -257,7 +279,7 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
         bt += offsets[bk, 2]
     if lut_d.shape[0] > 0:  # refine: gauss_newton (steps of at most one coarse step)
         return refine_pose(NO_FIELD, pool_f, tab, lut, lut_d, 0.0, ox, oy, inv_res, px, py, pt, bx, by, bt, fine_pts, kxy, kyaw, w_scale, 2.0 * lin_step, 2.0 * ang_step)
-    cur = _score_fine(pool_f, lut, tab, ox, oy, inv_res, bx, by, bt, fine_pts, ext)
+    cur = _score_fine(pool_f, lut, tab, ox, oy, inv_res, bx, by, bt, fine_pts, ext, work)
     n_eval = 1
     cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
     ls = lin_step
@@ -288,7 +310,7 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
                     ct += as_
                 else:
                     ct -= as_
-                sc = _score_fine(pool_f, lut, tab, ox, oy, inv_res, cx, cy, ct, fine_pts, ext)
+                sc = _score_fine(pool_f, lut, tab, ox, oy, inv_res, cx, cy, ct, fine_pts, ext, work)
                 n_eval += 1
                 sc -= kxy * ((cx - px) ** 2 + (cy - py) ** 2) + kyaw * (ct - pt) ** 2
                 if sc > ms:
