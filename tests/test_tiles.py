@@ -327,7 +327,10 @@ def test_the_two_pass_field_score_is_the_point_by_point_sum_to_the_bit():
     H, W = tab.shape[0] * 32, tab.shape[1] * 32
     lut = maps.field_lut.astype(np.float64)
     inv = 1.0 / RES
-    work = np.full((4, len(pts) + 7), np.nan)
+    # spare scratch columns hold a cell of the field's peak: a kernel that read past the points would add it
+    r, c = np.argwhere(maps.dense(0, "field") == maps.dense(0, "field").max())[0]
+    work = np.empty((4, len(pts) + 7))
+    work[:, len(pts):] = np.array([[c], [r], [0.0], [0.0]])
     half = tab.shape[0] * 32 * RES / 2
     for pose in rng.normal(0.0, [0.3, 0.3, 0.5], (20, 3)):
         x, y, th = maps.origin[0] + half + pose[0], maps.origin[1] + half + pose[1], pose[2]
@@ -341,6 +344,8 @@ def test_the_two_pass_field_score_is_the_point_by_point_sum_to_the_bit():
         assert 0 < read < len(pts)  # both the map and off it
         got = tiled_score_field(maps.pool_f, lut, tab, maps.origin[0], maps.origin[1], inv, x, y, th, pts, work)
         assert got == want and got > 0
+    with pytest.raises(ValueError, match="work"):
+        tiled_score_field(maps.pool_f, lut, tab, maps.origin[0], maps.origin[1], inv, x, y, th, pts, work[:, : len(pts) - 1])
 
 
 def test_reference_counts_after_inserts_equal_a_full_recount():

@@ -49,10 +49,12 @@ def tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts, work):
 
     Two passes: the points' places first (`place_points`, arithmetic alone, which the
     compiler vectorises), then the reads, summed in the points' order. `work` (4, >= M) is
-    scratch. About a tenth faster than placing and reading each point in turn (the hill
-    climb, Intel), with the same sum to the bit."""
+    scratch. About 8 % off the field search (dumped Intel steps) against placing and reading
+    each point in turn, with the same sum to the bit."""
     H = tab.shape[0] << TILE_SHIFT
     W = tab.shape[1] << TILE_SHIFT
+    if work.shape[0] < 4 or work.shape[1] < pts.shape[0]:  # numba does not check bounds
+        raise ValueError("tiled_score_field: work must be (4, >= number of points)")
     place_points(x, y, th, pts, ox, oy, inv_res, work)
     total = 0.0
     for i in range(pts.shape[0]):
