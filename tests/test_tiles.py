@@ -328,9 +328,10 @@ def test_the_two_pass_field_score_is_the_point_by_point_sum_to_the_bit():
     lut = maps.field_lut.astype(np.float64)
     inv = 1.0 / RES
     # spare scratch columns hold a cell of the field's peak: a kernel that read past the points would add it
-    r, c = np.argwhere(maps.dense(0, "field") == maps.dense(0, "field").max())[0]
+    field = maps.dense(0, "field")
+    peak_row, peak_col = np.argwhere(field == field.max())[0]
     work = np.empty((4, len(pts) + 7))
-    work[:, len(pts):] = np.array([[c], [r], [0.0], [0.0]])
+    work[:, len(pts):] = np.array([[peak_col], [peak_row], [0.0], [0.0]])
     half = tab.shape[0] * 32 * RES / 2
     for pose in rng.normal(0.0, [0.3, 0.3, 0.5], (20, 3)):
         x, y, th = maps.origin[0] + half + pose[0], maps.origin[1] + half + pose[1], pose[2]
