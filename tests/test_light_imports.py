@@ -34,3 +34,39 @@ def test_a_run_without_its_report_leaves_the_table_and_plot_libraries_out(tmp_pa
     assert (tmp_path / "run" / "steps.csv").is_file() and (tmp_path / "run" / "consistency.csv").is_file()
     loaded = [line for line in out.stdout.splitlines() if line.startswith("LOADED:")]
     assert loaded == ["LOADED:"], f"the run loaded: {loaded}"
+
+
+@pytest.mark.slow
+def test_the_cli_keeps_numbas_blas_probe_from_loading_scipy_and_kernels_still_get_blas():
+    # numba's first kernel load imports scipy.linalg only to ask whether BLAS exists (0.2 s,
+    # 13 MB); the CLI hides that one module while numba asks. A slamlab kernel then runs
+    # without SciPy, and a kernel that needs BLAS still gets it when it compiles.
+    code = """
+import sys
+import numpy as np
+import numba
+from slamlab.cli.app import _skip_numba_blas_probe
+from slamlab.slam.raycast import raycast_update
+
+_skip_numba_blas_probe()
+lo = np.zeros((8, 8), np.float32)
+flip = np.array([8, -1, 8, -1], np.int64)
+raycast_update(lo, 1, 1, np.array([1], np.int64), np.array([6], np.int64), 0.9, -0.4, -5.0, 5.0, 0.0, flip)
+print("row:", *lo[1, :7].round(2))
+print("scipy after a slamlab kernel:", "scipy.linalg" in sys.modules)
+
+
+@numba.njit
+def solve(a, b):
+    return np.linalg.solve(a, b) + np.dot(a, b)
+
+
+a = np.array([[2.0, 1.0], [1.0, 3.0]])
+b = np.array([1.0, 2.0])
+print("blas kernel right:", bool(np.allclose(solve(a, b), np.linalg.solve(a, b) + a @ b)))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-2000:]
+    lines = out.stdout.splitlines()
+    assert lines[0] == "row: 0.0 -0.4 -0.4 -0.4 -0.4 -0.4 0.9"  # the beam's free cells, then its end
+    assert lines[1:] == ["scipy after a slamlab kernel: False", "blas kernel right: True"]

@@ -67,8 +67,26 @@ def _limit_threads_for_parallel_jobs() -> None:
         pass
 
 
+def _skip_numba_blas_probe() -> None:
+    """numba's first kernel load asks once whether SciPy's BLAS exists by importing
+    scipy.linalg: 0.2-0.25 s CPU and 13 MB of a one-scan Intel run, which needs no SciPy
+    otherwise. The answer only picks how np.correlate / np.convolve compile inside a kernel
+    (BLAS's dot or numba's own loop); slamlab's kernels call neither, and any other linear
+    algebra in a kernel still imports SciPy's BLAS when that kernel compiles. So the probe
+    runs here, once per process, with that one module hidden: it finds no BLAS."""
+    blas = "scipy.linalg.cython_blas"
+    if "numba.np.arraymath" in sys.modules or blas in sys.modules:
+        return  # probed already, or SciPy's BLAS is loaded and the probe costs nothing
+    sys.modules[blas] = None  # type: ignore[assignment]  (an import of it raises ImportError)
+    try:
+        import numba.np.arraymath  # noqa: F401  (the module whose import probes)
+    finally:
+        del sys.modules[blas]
+
+
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def _hydra_main(cfg: DictConfig) -> None:
+    _skip_numba_blas_probe()
     hc = HydraConfig.get()
     multirun = hc.mode == RunMode.MULTIRUN
     if multirun and "BasicLauncher" not in str(hc.launcher.get("_target_", "")):
