@@ -403,7 +403,8 @@ def test_grid_matcher_by_whole_cell_shifts_counts_what_every_offset_counts(yaw_h
     """The course grid matcher places each yaw's points once and shifts them by whole cells
     (`grid_search_shifts`); it must pick the same offsets with the same counts as placing the
     points for every offset (`grid_search_hits`), including points lying exactly on cell
-    borders, where rounding could otherwise move them to a neighbouring cell."""
+    borders, where rounding could otherwise move them to a neighbouring cell, and points whose
+    shifts reach off the map."""
     from slamlab.slam.matcher import cell_shifts, grid_search_hits, grid_search_shifts
 
     rng = np.random.default_rng(5)
@@ -412,6 +413,8 @@ def test_grid_matcher_by_whole_cell_shifts_counts_what_every_offset_counts(yaw_h
     offsets = offset_grid(0.2, res, yaw_half_width, 0.01)
     pts = rng.uniform(-4.0, 4.0, (200, 2))
     pts[:60] = np.round(pts[:60] / res) * res  # on cell borders (with the poses below)
+    pts[60:80, 0] = rng.uniform(6.2, 6.6, 20)  # near the map's right and lower edges: from the
+    pts[80:100, 1] = rng.uniform(-6.6, -6.2, 20)  # first pose (0, 0, 0) their shifts cross them
     poses = np.vstack([np.zeros((1, 3)), np.column_stack([np.round(rng.uniform(-1, 1, (7, 2)) / res) * res, np.zeros(7)]),
                        rng.uniform(-1.0, 1.0, (8, 3))])
     shifts, by_yaw, yaws = cell_shifts(offsets, res)
