@@ -438,6 +438,37 @@ def test_grid_matcher_by_whole_cell_shifts_counts_what_every_offset_counts(yaw_h
     assert np.array_equal(c_p, b_p) and np.array_equal(c_s, b_s)
 
 
+@pytest.mark.parametrize("yaw_half_width", [0.0, 0.02])
+def test_tiled_grid_matcher_by_whole_cell_shifts_counts_what_every_offset_counts(yaw_half_width):
+    """The same for a map per particle in tiles (filter=rbpf, matcher=grid): block rows that
+    cross a tile border, shared and empty tiles, points off the map."""
+    from slamlab.slam.matcher import cell_shifts
+    from slamlab.slam.shift_search import tiled_grid_search_shifts
+    from slamlab.slam.tiled_match import tiled_grid_search
+    from slamlab.slam.tiles import TILE
+
+    rng = np.random.default_rng(7)
+    res, ox, oy = 0.05, -6.4, -6.4
+    side = 256 // TILE
+    pool = rng.choice(np.array([-3, 4], np.int8), size=(12, TILE, TILE), p=[0.8, 0.2])
+    pool[0] = 0  # the shared empty tile
+    table = rng.integers(0, 12, size=(16, side, side)).astype(np.int32)  # particles share tiles
+    offsets = offset_grid(0.2, res, yaw_half_width, 0.01)
+    pts = rng.uniform(-4.0, 4.0, (200, 2))
+    pts[:60] = np.round(pts[:60] / res) * res
+    pts[60:80, 0] = rng.uniform(6.2, 6.6, 20)
+    pts[80:100, 1] = rng.uniform(-6.6, -6.2, 20)
+    poses = np.vstack([np.zeros((1, 3)), np.column_stack([np.round(rng.uniform(-1, 1, (7, 2)) / res) * res, np.zeros(7)]),
+                       rng.uniform(-1.0, 1.0, (8, 3))])
+    shifts, by_yaw, yaws = cell_shifts(offsets, res)
+    a_p, a_s = np.empty_like(poses), np.empty(len(poses))
+    b_p, b_s = np.empty_like(poses), np.empty(len(poses))
+    tiled_grid_search(pool, table, np.int8(0), ox, oy, 1.0 / res, poses, pts, offsets, a_p, a_s)
+    tiled_grid_search_shifts(pool, table, np.int8(0), ox, oy, 1.0 / res, poses, pts, offsets, shifts, by_yaw, yaws, b_p, b_s)
+    assert np.array_equal(a_p, b_p) and np.array_equal(a_s, b_s)
+    assert len(np.unique(a_s)) > 3
+
+
 def test_likelihood_matcher_gives_the_same_bytes_on_one_thread():
     """The dense likelihood-field search runs particles on all cores; one thread must give the
     same poses, scores and evaluation counts."""

@@ -33,28 +33,11 @@ from slamlab.slam.gauss_newton import NO_LUT, NO_POOL, NO_TABLE, distance_table,
 from slamlab.slam.grid import OccupancyGrid
 from slamlab.slam.raycast import field_place, field_radius_cells
 from slamlab.slam.scan import ScanPoints
+from slamlab.slam.shift_search import grid_search_shifts, score_hits, tiled_grid_search_shifts
 from slamlab.slam.tiled_match import tiled_field_search, tiled_grid_search
 from slamlab.slam.tiles import TiledMaps
 
 _CLIMB = np.zeros(0)  # no distance table: `field_search` / `tiled_field_search` hill-climb
-
-
-@numba.njit(cache=True)
-def score_hits(lo, thresh, ox, oy, inv_res, x, y, th, pts):
-    """Number of points (M, 2, body-yaw frame) that fall on cells with `lo > thresh` when
-    the body is at (x, y, th)."""
-    H, W = lo.shape
-    c = math.cos(th)
-    s = math.sin(th)
-    total = 0.0
-    for i in range(pts.shape[0]):
-        wx = x + c * pts[i, 0] - s * pts[i, 1]
-        wy = y + s * pts[i, 0] + c * pts[i, 1]
-        col = int(math.floor((wx - ox) * inv_res))
-        row = int(math.floor((wy - oy) * inv_res))
-        if 0 <= row < H and 0 <= col < W and lo[row, col] > thresh:
-            total += 1.0
-    return total
 
 
 @numba.njit(cache=True)
@@ -140,88 +123,6 @@ def grid_search_hits(lo, thresh, ox, oy, inv_res, poses, pts, offsets, out_poses
         out_poses[i, 1] = poses[i, 1] + offsets[bk, 1]
         out_poses[i, 2] = poses[i, 2] + offsets[bk, 2]
         out_scores[i] = best
-
-
-# a point this close (in cells) to a cell border is placed anew for every offset, so that
-# rounding can never put it in another cell than the general loop does
-_BORDER_CELLS = 1e-6
-
-
-@numba.njit(cache=True, parallel=True)
-def grid_search_shifts(lo, thresh, ox, oy, inv_res, poses, pts, offsets, shifts, by_yaw, yaws, out_poses, out_scores):
-    """`grid_search_hits` when the x/y offsets are whole cells (`cell_shifts`): each yaw's
-    points are placed (rotated, floored) once per particle, and each point then reads the
-    block of cells its shifts reach, row by row, adding a hit to every shift at once
-    (`_count_block`). Points within `_BORDER_CELLS` of a cell border are placed anew per
-    offset, exactly as `score_hits` does. Scores are whole counts, so their order of adding
-    does not matter: counts, chosen offsets and hence trajectories are identical to
-    `grid_search_hits`. Particles run on all cores; each particle's result depends only on
-    its own inputs (not on the thread count)."""
-    K = offsets.shape[0]
-    m = pts.shape[0]
-    r_lo = shifts[:, 0].min()
-    c_lo = shifts[:, 1].min()
-    nr = shifts[:, 0].max() - r_lo + 1
-    nc = shifts[:, 1].max() - c_lo + 1
-    for i in numba.prange(poses.shape[0]):
-        score = np.zeros(K)
-        block = np.zeros(nr * nc, dtype=np.int64)  # hits of the placed points, by (row, col) shift
-        exact = np.empty((m, 2))  # the points placed anew at every offset
-        for a in range(yaws.shape[0]):
-            th = poses[i, 2] + yaws[a]
-            c = math.cos(th)
-            s = math.sin(th)
-            block[:] = 0
-            n_exact = 0
-            for q in range(m):
-                u = (poses[i, 0] + c * pts[q, 0] - s * pts[q, 1] - ox) * inv_res
-                v = (poses[i, 1] + s * pts[q, 0] + c * pts[q, 1] - oy) * inv_res
-                col = int(math.floor(u))
-                row = int(math.floor(v))
-                fu = u - col
-                fv = v - row
-                if fu < _BORDER_CELLS or fu > 1.0 - _BORDER_CELLS or fv < _BORDER_CELLS or fv > 1.0 - _BORDER_CELLS:
-                    exact[n_exact, 0] = pts[q, 0]
-                    exact[n_exact, 1] = pts[q, 1]
-                    n_exact += 1
-                else:
-                    _count_block(lo, thresh, row + r_lo, col + c_lo, nr, nc, block)
-            for j in range(by_yaw.shape[1]):
-                k = by_yaw[a, j]
-                total = float(block[(shifts[k, 0] - r_lo) * nc + shifts[k, 1] - c_lo])
-                if n_exact > 0:  # as score_hits, at this offset's pose
-                    x = poses[i, 0] + offsets[k, 0]
-                    y = poses[i, 1] + offsets[k, 1]
-                    total += score_hits(lo, thresh, ox, oy, inv_res, x, y, th, exact[:n_exact])
-                score[k] = total
-        best = -1.0
-        bk = 0
-        for k in range(K):
-            if score[k] > best:
-                best = score[k]
-                bk = k
-        out_poses[i, 0] = poses[i, 0] + offsets[bk, 0]
-        out_poses[i, 1] = poses[i, 1] + offsets[bk, 1]
-        out_poses[i, 2] = poses[i, 2] + offsets[bk, 2]
-        out_scores[i] = best
-
-
-@numba.njit(cache=True, inline="always")
-def _count_block(lo, thresh, r0, c0, nr, nc, block):
-    """Add 1 to block[a * nc + b] for every cell (r0 + a, c0 + b) of `lo` above `thresh`
-    (a < nr, b < nc); cells off the map count nothing. A row's cells are contiguous, so a
-    block inside the map is read a row at a time without bounds checks."""
-    H, W = lo.shape
-    if r0 >= 0 and c0 >= 0 and r0 + nr <= H and c0 + nc <= W:
-        for a in range(nr):
-            row = lo[r0 + a]
-            for b in range(nc):
-                block[a * nc + b] += 1 if row[c0 + b] > thresh else 0
-        return
-    for a in range(max(0, -r0), min(nr, H - r0)):
-        row = lo[r0 + a]
-        for b in range(max(0, -c0), min(nc, W - c0)):
-            block[a * nc + b] += 1 if row[c0 + b] > thresh else 0
 
 
 @numba.njit(cache=True, parallel=True)
@@ -452,10 +353,13 @@ class GridMatcher(Matcher):
         pts = self._points(scan)
         best = np.empty_like(poses)
         scores = np.empty(len(poses))
-        tiled_grid_search(
-            maps.pool_lo, maps.table if tables is None else tables, maps.lo_code(maps.s.occupied_threshold), maps.origin[0], maps.origin[1], 1.0 / maps.res,
-            np.ascontiguousarray(poses), pts, self.offsets, best, scores,
-        )
+        args = (maps.pool_lo, maps.table if tables is None else tables, maps.lo_code(maps.s.occupied_threshold), maps.origin[0],
+                maps.origin[1], 1.0 / maps.res, np.ascontiguousarray(poses), pts, self.offsets)
+        shifts, by_yaw, yaws = self._cell_shifts(maps.res)
+        if len(shifts):
+            tiled_grid_search_shifts(*args, shifts, by_yaw, yaws, best, scores)
+        else:
+            tiled_grid_search(*args, best, scores)
         self.map_reads += len(poses) * len(self.offsets) * len(pts)
         return self._finish(poses, best, scores)
 
