@@ -37,6 +37,25 @@ def test_a_run_without_its_report_leaves_the_table_and_plot_libraries_out(tmp_pa
 
 
 @pytest.mark.slow
+def test_a_run_with_its_report_still_leaves_pandas_out(tmp_path, sim_cache):
+    # the run report reads the run's tables as NumPy columns (io.table.read_csv) and smooths
+    # them itself: pandas (0.2 s, ~25 MB) is for the sweep report alone
+    argv = ["slamlab", "dataset.duration_s=20", "particles=10", f"dataset.cache_dir={sim_cache}",
+            f"hydra.run.dir={tmp_path / 'run'}", "progress=off"]
+    code = (
+        "import sys\nfrom slamlab.cli.app import main\n"
+        f"sys.argv = {argv!r}\n"
+        "try:\n    main()\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
+        "print('LOADED:', *sorted({m.split('.')[0] for m in sys.modules} & {'pandas', 'pyarrow', 'matplotlib', 'jinja2'}))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    page = (tmp_path / "run" / "report.html").read_text()
+    assert 'id="filter"' in page and "Error over time" in page  # the sections that read steps.csv and the errors
+    loaded = [line for line in out.stdout.splitlines() if line.startswith("LOADED:")]
+    assert loaded == ["LOADED: jinja2 matplotlib"], f"the run loaded: {loaded}"
+
+
+@pytest.mark.slow
 def test_the_cli_keeps_numbas_blas_probe_from_loading_scipy_and_kernels_still_get_blas():
     # numba's first kernel load imports scipy.linalg only to ask whether BLAS exists (0.2 s,
     # 13 MB); the CLI hides that one module while numba asks. A slamlab kernel then runs

@@ -67,3 +67,20 @@ def test_user_text_is_escaped(tmp_path: Path) -> None:
     (d / "metrics.json").write_text(json.dumps(m))
     page = write_run_report(d).read_text()
     assert "<script>alert(1)" not in page and "&lt;script&gt;alert(1)" in page
+
+
+def test_rolling_median_is_pandas_centred_rolling_median() -> None:
+    # the run report smooths without pandas; the curves must be the ones pandas drew
+    import numpy as np
+    import pandas as pd
+
+    from slamlab.report.figures import rolling_median
+
+    rng = np.random.default_rng(3)
+    y = rng.normal(size=103)
+    y[[0, 7, 8, 9, 50]] = np.nan
+    for n in (1, 2, 5, 103):
+        for win in (1, 2, 3, 4, 25, 40, 200):
+            want = pd.Series(y[:n]).rolling(win, center=True, min_periods=1).median().to_numpy()
+            np.testing.assert_array_equal(rolling_median(y[:n], win), want, err_msg=f"n={n} window={win}")
+    assert rolling_median(np.zeros(0), 5).shape == (0,)

@@ -61,3 +61,28 @@ def test_bad_columns_are_refused():
         Table({"a": np.zeros(3), "b": np.zeros(4)})
     with pytest.raises(ValueError, match="1-D"):
         Table({"a": np.zeros((3, 2))})
+
+
+def test_read_csv_gives_back_the_columns_pandas_reads(tmp_path):
+    # the run report reads its tables with read_csv (no pandas): same columns, dtypes and values
+    from io import StringIO
+
+    from slamlab.io.table import read_csv
+
+    text = Table(_mixed()).to_csv("%.17g")
+    (tmp_path / "t.csv").write_text(text)
+    mine, theirs = read_csv(tmp_path / "t.csv"), pd.read_csv(StringIO(text))
+    assert mine.columns == list(theirs.columns)
+    for name in mine:
+        want = theirs[name].to_numpy()
+        assert mine[name].dtype.kind == want.dtype.kind or (mine[name].dtype.kind == "U" and want.dtype == object), name
+        if want.dtype.kind == "f":
+            np.testing.assert_array_equal(mine[name], want)  # NaN where pandas has NaN, bit for bit elsewhere
+        else:
+            assert mine[name].tolist() == want.tolist(), name
+    (tmp_path / "bad.csv").write_text("a,b\n1,2\n3\n")
+    with pytest.raises(ValueError, match=r"bad.csv: line 3 has 1 fields, the header 2"):
+        read_csv(tmp_path / "bad.csv")
+    (tmp_path / "empty.csv").write_text("a,b\n")
+    empty = read_csv(tmp_path / "empty.csv")
+    assert empty.columns == ["a", "b"] and len(empty) == 0

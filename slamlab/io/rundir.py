@@ -26,6 +26,7 @@ from slamlab.errors import DataError, SlamlabError
 from slamlab.frames import GridImage
 from slamlab.io.atomic import write_json, write_npz
 from slamlab.io.run_metrics import RunMetrics
+from slamlab.io.table import Table, read_csv
 from slamlab.io.tum import read_tum, write_tum
 
 if TYPE_CHECKING:
@@ -288,6 +289,12 @@ class RunDirectory:
 
         csv = self.path / RunFile.STEPS_CSV
         return pd.read_csv(csv) if csv.is_file() else None
+
+    def read_columns(self, name: RunFile) -> Table | None:
+        """A CSV table of the run (steps.csv, relations.csv, consistency.csv) as NumPy columns
+        (`io.table.read_csv`: no pandas), None if absent."""
+        path = self.path / name
+        return read_csv(path) if path.is_file() else None
 
     def read_table(self, name: RunFile) -> pd.DataFrame | None:
         """A CSV table of the run (relations.csv, consistency.csv), None if absent."""

@@ -9,12 +9,15 @@ tools read the files back with pandas (`slamlab.io.rundir.RunDirectory.read_step
 
 The CSV text is what `DataFrame.to_csv(index=False, float_format=...)` writes for the same
 columns: booleans as True / False, integers in full, floats through `float_format` with NaN
-as an empty field.
+as an empty field. `read_csv` reads such a file back as a Table (the run report does, so that
+a run with its report loads no pandas either: 0.2 s of CPU and ~25 MB).
 """
 
 from __future__ import annotations
 
+import csv
 from collections.abc import Iterator, Mapping
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -98,3 +101,34 @@ def _quoted(text: str) -> str:
     if any(ch in text for ch in ',"\n\r'):
         return '"' + text.replace('"', '""') + '"'
     return text
+
+
+def read_csv(path: Path) -> Table:
+    """A CSV file with a header row (as `Table.to_csv` writes) as a Table. Each column becomes
+    bool (every field True or False), int64 (every field an integer), float64 (numbers, an
+    empty field NaN) or str. Raises ValueError naming the file and line when a row's field
+    count differs from the header's."""
+    with open(path, newline="", encoding="utf-8") as f:
+        rows = list(csv.reader(f))
+    if not rows:
+        raise ValueError(f"{path}: empty file, no header row")
+    header, body = rows[0], rows[1:]
+    for k, row in enumerate(body):
+        if len(row) != len(header):
+            raise ValueError(f"{path}: line {k + 2} has {len(row)} fields, the header {len(header)}")
+    return Table({name: _parse_column([row[j] for row in body]) for j, name in enumerate(header)})
+
+
+def _parse_column(fields: list[str]) -> np.ndarray:
+    """One column's fields as bool, int64, float64 (empty = NaN) or str (see `read_csv`)."""
+    if fields and all(f in ("True", "False") for f in fields):
+        return np.array([f == "True" for f in fields])
+    text = np.array(fields, dtype=str)
+    try:
+        return text.astype(np.int64)
+    except ValueError:
+        pass
+    try:
+        return np.where(text == "", "nan", text).astype(np.float64)
+    except ValueError:
+        return text

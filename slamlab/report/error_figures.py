@@ -9,9 +9,9 @@
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 
-from slamlab.report.figures import KIND_STYLE, fig_to_data_uri, plt
+from slamlab.io.table import Table
+from slamlab.report.figures import KIND_STYLE, fig_to_data_uri, plt, rolling_median
 from slamlab.report.error_series import pose_errors
 from slamlab.report.rundir import Trajectory
 
@@ -32,22 +32,23 @@ def ate_over_time(truth: Trajectory, estimates: dict[str, Trajectory | None]) ->
     return _finish(fig, a1, a2, "position error (m)", "heading error (°)", "time since first scan (s)")
 
 
-def relation_error_over_time(table: pd.DataFrame) -> str:
+def relation_error_over_time(table: Table) -> str:
     """Per-relation translation and rotation error versus the relation's start time:
     points per relation and a rolling median, for SLAM and odometry."""
-    table = table.sort_values("t1")
-    t = table["t1"].to_numpy(float) - float(table["t1"].min())
+    order = np.argsort(np.asarray(table["t1"], float), kind="stable")
+    t1 = np.asarray(table["t1"], float)[order]
+    t = t1 - float(t1.min())
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(13.0, 4.6), sharex=True)
     win = max(5, len(table) // 15)  # relations are noisy: smooth over several
     for kind in ("odometry", "slam"):
         if f"{kind}_trans_m" not in table:
             continue
         style = KIND_STYLE[kind]
-        trans, rot = table[f"{kind}_trans_m"].to_numpy(float), table[f"{kind}_rot_deg"].to_numpy(float)
+        trans, rot = np.asarray(table[f"{kind}_trans_m"], float)[order], np.asarray(table[f"{kind}_rot_deg"], float)[order]
         label = f"{style['label']}: mean {np.mean(trans):.3g} m / {np.mean(rot):.3g}°"
         for ax, y, lab in ((a1, trans, label), (a2, rot, None)):
             ax.scatter(t, y, s=6, color=style["color"], alpha=0.35, lw=0)
-            smooth = pd.Series(y).rolling(win, center=True, min_periods=1).median().to_numpy()
+            smooth = rolling_median(y, win)
             ax.plot(t, smooth, color=style["color"], lw=1.3, label=lab)
     a2.text(1.005, 0.95, f"lines: rolling median\nof {win} relations", transform=a2.transAxes, fontsize=8, va="top")
     return _finish(fig, a1, a2, "translation error (m)", "rotation error (°)", "start of the relation, time since the first one (s)")

@@ -51,12 +51,12 @@ def relation_series(run: RunDir) -> ErrorSeries | None:
     """Translational error of each relation the run covers, at the time of its later scan,
     from the run's relations.csv; None without one."""
     est = run.load_trajectory("slam")
-    table = run.files.read_table(RunFile.RELATIONS) if est is not None else None
+    table = run.files.read_columns(RunFile.RELATIONS) if est is not None else None
     if table is None or not len(table):
         return None
-    t = np.maximum(table["t1"].to_numpy(float), table["t2"].to_numpy(float)) - est.t[0]
+    t = np.maximum(np.asarray(table["t1"], float), np.asarray(table["t2"], float)) - est.t[0]
     order = np.argsort(t, kind="stable")
-    return ErrorSeries(RELATIONS, t[order], table["slam_trans_m"].to_numpy(float)[order])
+    return ErrorSeries(RELATIONS, t[order], np.asarray(table["slam_trans_m"], float)[order])
 
 
 def error_series(run: RunDir) -> ErrorSeries | None:

@@ -11,10 +11,10 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-import pandas as pd
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
+from slamlab.io.table import Table
 from slamlab.report.figures import KIND_STYLE, draw_map, plt, prepare_map, step_times
 from slamlab.report.rundir import FirstScan, LogOddsMap, ParticleRecord, Trajectory
 
@@ -74,20 +74,20 @@ def particle_paths_figure(
     return fig
 
 
-def spread_figure(steps: pd.DataFrame) -> Figure:
+def spread_figure(steps: Table) -> Figure:
     """Measured spread of the particle cloud against the spread the configured motion noise
     predicts (steps columns of a predict run), position (m) and heading (degrees)."""
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(9.0, 5.0), sharex=True)
     t = step_times(steps)
     for ax, col, scale, unit in ((a1, "xy_m", 1.0, "position spread (m)"), (a2, "theta_rad", 180.0 / np.pi, "heading spread (°)")):
-        ax.plot(t, steps[f"spread_{col}"].to_numpy(float) * scale, lw=1.1, color=PARTICLE_COLOUR, label="measured (particles)")
-        ax.plot(t, steps[f"expected_spread_{col}"].to_numpy(float) * scale, lw=1.1, ls="--", color="black",
+        ax.plot(t, np.asarray(steps[f"spread_{col}"], float) * scale, lw=1.1, color=PARTICLE_COLOUR, label="measured (particles)")
+        ax.plot(t, np.asarray(steps[f"expected_spread_{col}"], float) * scale, lw=1.1, ls="--", color="black",
                 label="expected from the configured noise")
         ax.set_ylabel(unit)
         ax.grid(alpha=0.3)
         ax.legend(loc="upper left", fontsize=8)
     if "distance_m" in steps:
-        top = a1.secondary_xaxis("top", functions=_time_to_distance(t, steps["distance_m"].to_numpy(float)))
+        top = a1.secondary_xaxis("top", functions=_time_to_distance(t, np.asarray(steps["distance_m"], float)))
         top.set_xlabel("odometry distance travelled (m)")
     a2.set_xlabel("time since first step (s)")
     return fig

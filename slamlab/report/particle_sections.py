@@ -12,8 +12,8 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
+from slamlab.io.table import Table
 from slamlab.report import particle_figures
 from slamlab.report.figures import fig_to_data_uri
 from slamlab.report.html import fmt_number
@@ -67,16 +67,16 @@ def predict_section(run: RunDir) -> dict[str, Any] | None:
     return out
 
 
-def spread_rows(steps: pd.DataFrame, marks_m: tuple[float, ...] = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)) -> list[list[str]]:
+def spread_rows(steps: Table, marks_m: tuple[float, ...] = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)) -> list[list[str]]:
     """Measured against expected spread at the first step past each distance mark (and the
     last step): [distance m, time s, measured m, expected m, ratio, measured °, expected °]."""
-    d = steps["distance_m"].to_numpy(float)
+    d = np.asarray(steps["distance_m"], float)
     picks = [int(np.argmax(d >= mark)) for mark in marks_m if d[-1] >= mark] + [len(d) - 1]
     rows = []
-    t = steps["t"].to_numpy(float) - float(steps["t"].iloc[0])
+    t = np.asarray(steps["t"], float) - float(steps["t"][0])
     for k in dict.fromkeys(picks):
-        sx, ex = float(steps["spread_xy_m"].iloc[k]), float(steps["expected_spread_xy_m"].iloc[k])
-        st, et = float(steps["spread_theta_rad"].iloc[k]), float(steps["expected_spread_theta_rad"].iloc[k])
+        sx, ex = float(steps["spread_xy_m"][k]), float(steps["expected_spread_xy_m"][k])
+        st, et = float(steps["spread_theta_rad"][k]), float(steps["expected_spread_theta_rad"][k])
         rows.append([fmt_number(d[k]), fmt_number(t[k]), fmt_number(sx), fmt_number(ex),
                      fmt_number(sx / ex) if ex > 0 else "–", fmt_number(np.degrees(st)), fmt_number(np.degrees(et))])
     return rows

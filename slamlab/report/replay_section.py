@@ -121,9 +121,9 @@ def replay_section(run: RunDir) -> ReplaySection | None:
     steps = run.load_steps()
     if steps is not None and "neff" in steps and len(steps):
         keep = snapshot_steps(len(steps), MAX_CURVE_POINTS)
-        t = steps["t"].to_numpy(float) - z["t"][0] if "t" in steps else np.arange(len(steps), dtype=float)
-        data["neff"] = {"t": np.round(t[keep], 2).tolist(), "v": np.round(steps["neff"].to_numpy(float)[keep], 2).tolist(),
-                        "n": run.particles or float(steps["neff"].max())}
+        t = np.asarray(steps["t"], float) - z["t"][0] if "t" in steps else np.arange(len(steps), dtype=float)
+        data["neff"] = {"t": np.round(t[keep], 2).tolist(), "v": np.round(np.asarray(steps["neff"], float)[keep], 2).tolist(),
+                        "n": run.particles or float(np.max(steps["neff"]))}
     return ReplaySection(frames=frames, data_json=json.dumps(data, separators=(",", ":")), width=w, height=h, count=len(frames))
 
 

@@ -11,7 +11,7 @@ import shlex
 from pathlib import Path
 from typing import Any
 
-import pandas as pd
+import numpy as np
 import yaml
 
 from slamlab.report import error_figures, figures, particle_sections
@@ -144,7 +144,7 @@ def _error_over_time(run: RunDir, trajs: dict[str, Any]) -> tuple[str | None, st
         img = error_figures.ate_over_time(gt, {k: trajs[k] for k in ("odometry", "slam") if trajs.get(k) is not None})
         return img, ("Distance from the true pose at every scan (top) and heading error (bottom), no alignment:"
                      " a rise marks where the estimate drifted, a drop where it recovered (e.g. a loop closed).")
-    table = run.files.read_table(RunFile.RELATIONS)
+    table = run.files.read_columns(RunFile.RELATIONS)
     if table is not None:
         if len(table):
             return error_figures.relation_error_over_time(table), (
@@ -221,16 +221,15 @@ def render_run_report(run: RunDir) -> str:
         thr, thr_src = neff_threshold(run.config, particles)
         neff_img = figures.neff_plot(steps, particles, thr)
         weight_img = figures.weight_and_time_plot(steps)
-        n_res = int(steps["resampled"].astype(bool).sum()) if "resampled" in steps else 0
+        n_res = int(np.asarray(steps["resampled"], dtype=bool).sum()) if "resampled" in steps else 0
         neff_note = (
             f"{len(steps)} filter steps; resampled {n_res} times (orange ticks in the strip below the curve)."
             + (f" Dashed red line: resampling threshold ({thr_src})." if thr is not None else f" No threshold line: {thr_src}.")
         )
 
     consistency_img = None
-    cons_path = run.file(RunFile.CONSISTENCY)
-    if cons_path is not None:
-        series = pd.read_csv(cons_path)
+    series = run.files.read_columns(RunFile.CONSISTENCY)
+    if series is not None:
         if len(series) > 1:  # one replayed scan has no "over time" (as for N_eff above)
             consistency_img = figures.consistency_plot(series)
 

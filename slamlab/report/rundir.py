@@ -16,12 +16,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from slamlab.errors import SlamlabError
 from slamlab.io.atomic import json_ready
 from slamlab.io.rundir import FirstScan, ParticleRecord, RunDirectory, RunFile, TrajectoryKind  # noqa: F401 (types the report modules use)
 from slamlab.io.rundir import read_logodds as read_logodds_file
+from slamlab.io.table import Table
 from slamlab.io.tum import read_tum as read_tum_file
 
 STATUS_OK = "ok"
@@ -161,9 +161,9 @@ class RunDir:
         """The first scan in the world frame (record.first_scan), or None."""
         return self._cached("first_scan", self.files.read_first_scan)
 
-    def load_steps(self) -> pd.DataFrame | None:
-        """The per-step table (`RunDirectory.read_steps`), or None."""
-        return self._cached("steps", self.files.read_steps)
+    def load_steps(self) -> Table | None:
+        """The per-step table (steps.csv) as NumPy columns, or None."""
+        return self._cached("steps", lambda: self.files.read_columns(RunFile.STEPS_CSV))
 
 
 # --- file readers (the contract reads, these wrap for the figures) -----------------------
@@ -189,11 +189,6 @@ def read_tum(path: Path) -> Trajectory | None:
 def read_logodds(path: Path) -> LogOddsMap | None:
     """A map_logodds.npz (slamlab.io.rundir.read_logodds); None if missing."""
     return _log_odds_map(read_logodds_file(path) if path.is_file() else None)
-
-
-def read_steps(run_dir: Path) -> pd.DataFrame | None:
-    """The per-step table (RunDirectory.read_steps); None if absent."""
-    return RunDirectory(run_dir).read_steps()
 
 
 def _tail(path: Path, max_lines: int = 40, max_bytes: int = 64_000) -> str | None:

@@ -475,7 +475,7 @@ def _neff(runs: Sequence[RunDir], ok_idx: Sequence[int], display: Sequence[str],
         if steps is None or "neff" not in steps or not len(steps):
             continue
         t = figures.step_times(steps)
-        y = steps["neff"].to_numpy(float)
+        y = np.asarray(steps["neff"], float)
         if normalise and runs[i].particles:
             y = y / runs[i].particles
         # N_eff saw-tooths between resamplings; overlaid raw, a dozen runs are a solid band.
