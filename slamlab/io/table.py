@@ -3,14 +3,15 @@
 A run writes three tables (steps.csv, consistency.csv, relations.csv) of a few thousand rows.
 Building them as pandas DataFrames made every run import pandas, and with it pyarrow when it
 is installed: about 80 MB resident and 0.3 s of CPU, more than the Intel filter's maps at their
-peak. So the run keeps its tables as columns and writes the CSV text here; the reports and
-tools read the files back with pandas (`slamlab.io.rundir.RunDirectory.read_steps`), and
-`Table.to_pandas` converts one where a DataFrame is wanted.
+peak. So the run keeps its tables as columns and writes the CSV text here; the run report
+reads them back with `read_csv` (`RunDirectory.read_columns`), the sweep report and tools
+with pandas (`RunDirectory.read_steps` / `read_table`), and `Table.to_pandas` converts one
+where a DataFrame is wanted.
 
 The CSV text is what `DataFrame.to_csv(index=False, float_format=...)` writes for the same
 columns: booleans as True / False, integers in full, floats through `float_format` with NaN
-as an empty field. `read_csv` reads such a file back as a Table (the run report does, so that
-a run with its report loads no pandas either: 0.2 s of CPU and ~25 MB).
+as an empty field. `read_csv` reads such a file back as a Table with the columns pandas
+would read, so that a run with its report loads no pandas either (0.2 s of CPU, 30 MB).
 """
 
 from __future__ import annotations
