@@ -28,10 +28,12 @@ def test_a_run_without_its_report_leaves_the_table_and_plot_libraries_out(tmp_pa
         "import sys\nfrom slamlab.cli.app import main\n"
         f"sys.argv = {argv!r}\n"
         "try:\n    main()\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
-        "print('LOADED:', *sorted({m.split('.')[0] for m in sys.modules} & {'pandas', 'pyarrow', 'matplotlib', 'jinja2'}))"
+        "print('LOADED:', *sorted({m.split('.')[0] for m in sys.modules} & {'pandas', 'pyarrow', 'matplotlib', 'jinja2'}))\n"
+        "print('scipy.linalg:', 'scipy.linalg' in sys.modules)"  # numba's BLAS probe, skipped by the CLI
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert (tmp_path / "run" / "steps.csv").is_file() and (tmp_path / "run" / "consistency.csv").is_file()
+    assert "scipy.linalg: False" in out.stdout.splitlines()
     loaded = [line for line in out.stdout.splitlines() if line.startswith("LOADED:")]
     assert loaded == ["LOADED:"], f"the run loaded: {loaded}"
 

@@ -415,15 +415,18 @@ def test_grid_matcher_by_whole_cell_shifts_counts_what_every_offset_counts(yaw_h
     pts[:60] = np.round(pts[:60] / res) * res  # on cell borders (with the poses below)
     pts[60:80, 0] = rng.uniform(6.2, 6.6, 20)  # near the map's right and lower edges: from the
     pts[80:100, 1] = rng.uniform(-6.6, -6.2, 20)  # first pose (0, 0, 0) their shifts cross them
+    pts[100] = [0.013, np.nan]  # a NaN scores nothing (numba checks no bounds: no read off the map)
     poses = np.vstack([np.zeros((1, 3)), np.column_stack([np.round(rng.uniform(-1, 1, (7, 2)) / res) * res, np.zeros(7)]),
-                       rng.uniform(-1.0, 1.0, (8, 3))])
+                       rng.uniform(-1.0, 1.0, (8, 3)), [[np.nan, 0.0, 0.0]]])
     shifts, by_yaw, yaws = cell_shifts(offsets, res)
     assert len(shifts) == len(offsets)
     a_p, a_s = np.empty_like(poses), np.empty(len(poses))
     b_p, b_s = np.empty_like(poses), np.empty(len(poses))
     grid_search_hits(lo, np.float32(0.0), ox, oy, 1.0 / res, poses, pts, offsets, a_p, a_s)
     grid_search_shifts(lo, np.float32(0.0), ox, oy, 1.0 / res, poses, pts, offsets, shifts, by_yaw, yaws, b_p, b_s)
-    assert np.array_equal(a_p, b_p) and np.array_equal(a_s, b_s)
+    np.testing.assert_array_equal(b_p, a_p)  # NaN where the reference has NaN (the NaN pose)
+    np.testing.assert_array_equal(b_s, a_s)
+    assert a_s[-1] == 0.0
     assert len(np.unique(a_s)) > 3  # the scores differ between particles: a real search
     # particles run on all cores: one thread gives the same bytes
     import numba
@@ -435,7 +438,7 @@ def test_grid_matcher_by_whole_cell_shifts_counts_what_every_offset_counts(yaw_h
         grid_search_shifts(lo, np.float32(0.0), ox, oy, 1.0 / res, poses, pts, offsets, shifts, by_yaw, yaws, c_p, c_s)
     finally:
         numba.set_num_threads(before)
-    assert np.array_equal(c_p, b_p) and np.array_equal(c_s, b_s)
+    assert np.array_equal(c_p, b_p, equal_nan=True) and np.array_equal(c_s, b_s)
 
 
 @pytest.mark.parametrize("yaw_half_width", [0.0, 0.02])
@@ -458,14 +461,17 @@ def test_tiled_grid_matcher_by_whole_cell_shifts_counts_what_every_offset_counts
     pts[:60] = np.round(pts[:60] / res) * res
     pts[60:80, 0] = rng.uniform(6.2, 6.6, 20)
     pts[80:100, 1] = rng.uniform(-6.6, -6.2, 20)
+    pts[100] = [0.013, np.nan]
     poses = np.vstack([np.zeros((1, 3)), np.column_stack([np.round(rng.uniform(-1, 1, (7, 2)) / res) * res, np.zeros(7)]),
-                       rng.uniform(-1.0, 1.0, (8, 3))])
+                       rng.uniform(-1.0, 1.0, (8, 3)), [[np.nan, 0.0, 0.0]]])
     shifts, by_yaw, yaws = cell_shifts(offsets, res)
     a_p, a_s = np.empty_like(poses), np.empty(len(poses))
     b_p, b_s = np.empty_like(poses), np.empty(len(poses))
     tiled_grid_search(pool, table, np.int8(0), ox, oy, 1.0 / res, poses, pts, offsets, a_p, a_s)
     tiled_grid_search_shifts(pool, table, np.int8(0), ox, oy, 1.0 / res, poses, pts, offsets, shifts, by_yaw, yaws, b_p, b_s)
-    assert np.array_equal(a_p, b_p) and np.array_equal(a_s, b_s)
+    np.testing.assert_array_equal(b_p, a_p)
+    np.testing.assert_array_equal(b_s, a_s)
+    assert a_s[-1] == 0.0
     assert len(np.unique(a_s)) > 3
 
 

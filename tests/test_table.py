@@ -83,6 +83,10 @@ def test_read_csv_gives_back_the_columns_pandas_reads(tmp_path):
     (tmp_path / "bad.csv").write_text("a,b\n1,2\n3\n")
     with pytest.raises(ValueError, match=r"bad.csv: line 3 has 1 fields, the header 2"):
         read_csv(tmp_path / "bad.csv")
+    (tmp_path / "one.csv").write_text(Table({"v": np.array([1.5, np.nan, 2.0])}).to_csv())  # NaN: an empty line (pandas skips it)
+    np.testing.assert_array_equal(read_csv(tmp_path / "one.csv")["v"], [1.5, np.nan, 2.0])
+    (tmp_path / "big.csv").write_text("n\n1\n99999999999999999999\n")  # past int64: floats (pandas: text), no crash
+    assert read_csv(tmp_path / "big.csv")["n"].dtype == np.float64
     (tmp_path / "empty.csv").write_text("a,b\n")
     empty = read_csv(tmp_path / "empty.csv")
     assert empty.columns == ["a", "b"] and len(empty) == 0

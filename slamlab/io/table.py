@@ -105,15 +105,17 @@ def _quoted(text: str) -> str:
 
 
 def read_csv(path: Path) -> Table:
-    """A CSV file with a header row (as `Table.to_csv` writes) as a Table. Each column becomes
-    bool (every field True or False), int64 (every field an integer), float64 (numbers, an
-    empty field NaN) or str. Raises ValueError naming the file and line when a row's field
-    count differs from the header's."""
+    """A CSV file as `Table.to_csv` writes it (a header row, then one line per row) as a
+    Table, with the columns pandas reads from it: bool (every field True or False), int64
+    (every field an integer), float64 (numbers, an empty field NaN) or str. Raises
+    ValueError naming the file and line when a row's field count differs from the header's."""
     with open(path, newline="", encoding="utf-8") as f:
         rows = list(csv.reader(f))
     if not rows:
         raise ValueError(f"{path}: empty file, no header row")
     header, body = rows[0], rows[1:]
+    if len(header) == 1:  # a one-column table writes a NaN as an empty line
+        body = [row or [""] for row in body]
     for k, row in enumerate(body):
         if len(row) != len(header):
             raise ValueError(f"{path}: line {k + 2} has {len(row)} fields, the header {len(header)}")
@@ -127,7 +129,7 @@ def _parse_column(fields: list[str]) -> np.ndarray:
     text = np.array(fields, dtype=str)
     try:
         return text.astype(np.int64)
-    except ValueError:
+    except (ValueError, OverflowError):  # not all integers, or one beyond int64
         pass
     try:
         return np.where(text == "", "nan", text).astype(np.float64)

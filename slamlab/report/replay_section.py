@@ -123,7 +123,7 @@ def replay_section(run: RunDir) -> ReplaySection | None:
         keep = snapshot_steps(len(steps), MAX_CURVE_POINTS)
         t = np.asarray(steps["t"], float) - z["t"][0] if "t" in steps else np.arange(len(steps), dtype=float)
         data["neff"] = {"t": np.round(t[keep], 2).tolist(), "v": np.round(np.asarray(steps["neff"], float)[keep], 2).tolist(),
-                        "n": run.particles or float(np.max(steps["neff"]))}
+                        "n": run.particles or float(np.nanmax(steps["neff"]))}
     return ReplaySection(frames=frames, data_json=json.dumps(data, separators=(",", ":")), width=w, height=h, count=len(frames))
 
 

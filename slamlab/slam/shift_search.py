@@ -125,7 +125,9 @@ def place_cells(x, y, th, pts, ox, oy, inv_res, cells, exact):
         row = math.floor(v)
         fu = u - col
         fv = v - row
-        if fu < _BORDER_CELLS or fu > 1.0 - _BORDER_CELLS or fv < _BORDER_CELLS or fv > 1.0 - _BORDER_CELLS:
+        # written so that NaN (a NaN point or pose) is placed exactly too: its cell would be
+        # floor(NaN), and the bounds checks of `count_block` could overflow on it
+        if not (_BORDER_CELLS <= fu <= 1.0 - _BORDER_CELLS and _BORDER_CELLS <= fv <= 1.0 - _BORDER_CELLS):
             exact[n_exact, 0] = pts[q, 0]
             exact[n_exact, 1] = pts[q, 1]
             n_exact += 1
@@ -141,7 +143,7 @@ def count_block(lo, thresh, r0, c0, nr, nc, block):
     """Add 1 to block[a * nc + b] for every cell (r0 + a, c0 + b) of `lo` above `thresh`
     (a < nr, b < nc); cells off the map count nothing."""
     H, W = lo.shape
-    if r0 >= 0 and c0 >= 0 and r0 + nr <= H and c0 + nc <= W:  # inside: no bounds to check
+    if r0 >= 0 and c0 >= 0 and r0 <= H - nr and c0 <= W - nc:  # inside: no bounds to check (no overflow either)
         for a in range(nr):
             row = lo[r0 + a]
             for b in range(nc):
