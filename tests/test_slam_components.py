@@ -121,27 +121,6 @@ def test_scan_to_points_drops_ground_hits():
     np.testing.assert_allclose(p.xy[0], (rot_y(np.radians(30)) @ [1.0, 0, 0, 1])[:2] + 0.48 * np.sin(np.radians(30)) * np.array([1, 0]), atol=1e-9)
 
 
-@pytest.mark.parametrize("body_height", [None, 0.93])
-def test_scans_to_points_gives_each_frame_what_scan_to_points_gives_it(body_height):
-    """The scans between filter steps are projected a run of frames at a time: the same
-    points, bit for bit, as one frame at a time, whether frames share their lidar transform
-    (a planar log) or not (a walking robot's pitch), with empty scans and ground hits."""
-    from slamlab.slam.scan import scans_to_points
-
-    rng = np.random.default_rng(2)
-    angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
-    pitches = [0.0, 0.0, 0.0, 0.1, 0.1, 0.0, 0.2, 0.0, 0.0]
-    frames = [_frame(rng.uniform(0.0, 40.0, 181), angles, l2b=trans(x=0.1, z=0.48), pitch=p) for p in pitches]
-    frames[4] = _frame(np.full(181, 50.0), angles, l2b=trans(x=0.1, z=0.48), pitch=0.1)  # every beam too long
-    one = [scan_to_points(f, body_height, 0.1, 30.0, 0.1) for f in frames]
-    batch = scans_to_points(frames, body_height, 0.1, 30.0, 0.1)
-    assert len(batch) == len(frames) and len(batch[4].xy) == 0 and len(batch[0].xy) > 100
-    for a, b in zip(one, batch):
-        assert a.xy.tobytes() == b.xy.tobytes() and a.origin.tobytes() == b.origin.tobytes()
-        assert b.xy.flags.c_contiguous
-    assert scans_to_points([], body_height, 0.1, 30.0, 0.1) == []
-
-
 # ---------------------------------------------------------------- weighting, N_eff
 
 

@@ -45,58 +45,18 @@ def scan_to_points(
 
     `body_height_m` None means a planar robot (CARMEN): no ground filtering, heights ignored.
     """
-    return _project([frame], _frame_transform(frame, body_height_m), body_height_m, min_range_m, max_range_m, ground_threshold_m)[0]
-
-
-def scans_to_points(
-    frames: list[ScanFrame],
-    body_height_m: float | None,
-    min_range_m: float,
-    max_range_m: float,
-    ground_threshold_m: float,
-) -> list[ScanPoints]:
-    """`scan_to_points` of each frame, with the same values, projected a run of frames at a
-    time: consecutive frames whose lidar sits alike in the body-yaw frame (every scan of a
-    planar log) share one transform and one pass over their beams. For the scans between
-    filter steps, most of a log: one call per scan cost ~40 us of NumPy overhead each
-    (~0.5 s of an Intel run)."""
-    out: list[ScanPoints] = []
-    k = 0
-    while k < len(frames):
-        T = _frame_transform(frames[k], body_height_m)
-        end = k + 1
-        while end < len(frames) and _frame_transform(frames[end], body_height_m) is T:  # cached: the same object
-            end += 1
-        out.extend(_project(frames[k:end], T, body_height_m, min_range_m, max_range_m, ground_threshold_m))
-        k = end
-    return out
-
-
-def _frame_transform(frame: ScanFrame, body_height_m: float | None) -> FloatArray:
+    r = frame.ranges.astype(np.float64)
+    a = frame.angles.astype(np.float64)
+    keep = frame.valid & np.isfinite(r) & (r >= min_range_m) & (r <= max_range_m)
+    r, a = r[keep], a[keep]
     height = 0.0 if body_height_m is None else float(body_height_m)
-    return _lidar_in_body_yaw(float(frame.roll), float(frame.pitch), height, np.asarray(frame.lidar_to_body, dtype=np.float64).tobytes())
-
-
-def _project(frames: list[ScanFrame], T: FloatArray, body_height_m: float | None, min_range_m: float,
-             max_range_m: float, ground_threshold_m: float) -> list[ScanPoints]:
-    """`scan_to_points` of frames sharing the transform T: the same operations on each beam,
-    on all the frames' beams at once."""
-    r_parts, a_parts = [], []
-    for frame in frames:
-        r = frame.ranges.astype(np.float64)
-        a = frame.angles.astype(np.float64)
-        keep = frame.valid & np.isfinite(r) & (r >= min_range_m) & (r <= max_range_m)
-        r_parts.append(r[keep])
-        a_parts.append(a[keep])
-    r = np.concatenate(r_parts)
-    a = np.concatenate(a_parts)
+    T = _lidar_in_body_yaw(float(frame.roll), float(frame.pitch), height, np.asarray(frame.lidar_to_body, dtype=np.float64).tobytes())
     p = np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+    # transform of (x, y, 0): only the first two columns of the rotation matter
     pts = p @ T[:3, :2].T + T[:3, 3]
-    ends = np.cumsum([len(x) for x in r_parts])[:-1]
-    pieces = np.split(pts, ends)
     if body_height_m is not None:
-        pieces = [q[q[:, 2] > ground_threshold_m] for q in pieces]
-    return [ScanPoints(xy=np.ascontiguousarray(q[:, :2]), origin=T[:2, 3].copy()) for q in pieces]
+        pts = pts[pts[:, 2] > ground_threshold_m]
+    return ScanPoints(xy=np.ascontiguousarray(pts[:, :2]), origin=T[:2, 3].copy())
 
 
 @lru_cache(maxsize=16)
