@@ -680,25 +680,3 @@ def test_the_grid_matcher_matches_only_the_points_with_a_close_neighbour():
     _, kept_only = GridMatcher(xy_half_width_m=0.0, beam_step=1).match(g, pose, ScanPoints(xy=isolated_filter(xy, 0.6), origin=np.zeros(2)))
     _, every = GridMatcher(xy_half_width_m=0.0, beam_step=1).match(g, pose, ScanPoints(xy=xy, origin=np.zeros(2)))
     assert with_gap[0] == kept_only[0] < every[0]  # the lone far hits no longer count
-
-
-def test_the_likelihood_matchers_points_of_many_scans_are_each_scans_own():
-    """The scans between filter steps get their matching points all at once
-    (`_points_of_scans`): the same points, in the same order and counts, as scan by scan
-    (`_points`): a gap between two scans never makes a neighbour, a scan with no close
-    pair keeps every point, each scan's beam steps start at its own first point."""
-    from slamlab.slam.matcher import LikelihoodFieldMatcher
-
-    rng = np.random.default_rng(1)
-    for _ in range(60):
-        scans = []
-        for n in rng.choice([0, 1, 2, 3, 50, 180], size=rng.integers(1, 10)):
-            xy = np.cumsum(rng.normal(scale=rng.choice([0.05, 0.5, 2.0]), size=(int(n), 2)), axis=0)
-            scans.append(ScanPoints(xy=np.ascontiguousarray(xy), origin=np.zeros(2)))
-        for gap, coarse_step, step in ((0.0, 3, 1), (0.6, 3, 1), (0.6, 4, 2)):
-            m = LikelihoodFieldMatcher(max_gap_m=gap, coarse_beam_step=coarse_step, beam_step=step)
-            one = [m._points(q) for q in scans]
-            coarse, fine, n_coarse, n_fine = m._points_of_scans(scans)
-            assert np.concatenate([p[0] for p in one]).reshape(-1, 2).tobytes() == coarse.tobytes()
-            assert np.concatenate([p[1] for p in one]).reshape(-1, 2).tobytes() == fine.tobytes()
-            assert n_coarse.tolist() == [len(p[0]) for p in one] and n_fine.tolist() == [len(p[1]) for p in one]

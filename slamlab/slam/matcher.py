@@ -547,22 +547,16 @@ class LikelihoodFieldMatcher(Matcher):
         result is what `match_each` gives it alone."""
         if not scans:
             return np.empty((0, 3))
-        if self.voxel_m > 0 or self.stretches:
-            parts = [self._points(scan) for scan in scans]
-            coarse = np.concatenate([q[0] for q in parts]).reshape(-1, 2)
-            fine = np.concatenate([q[1] for q in parts]).reshape(-1, 2)
-            ext = _NO_STRETCHES
-            if any(len(q[2]) for q in parts):  # stretches for all (a scan without any: rows of none)
-                ext = np.concatenate([q[2] if len(q[2]) else np.zeros((len(q[1]), 6)) for q in parts])
-            counts = [np.array([len(q[k]) for q in parts], dtype=np.int64) for k in (0, 1)]
-            # the reads of each scan as `_count_field_reads` counts them
-            samples = np.array([_fine_samples(len(f), e) for _, f, e in parts], dtype=np.int64)
-        else:
-            coarse, fine, *counts = self._points_of_scans(scans)
-            ext = _NO_STRETCHES
-            samples = counts[1]
-        spans = tuple(np.column_stack([at[:-1], at[1:]]) for at in (np.concatenate([[0], np.cumsum(c)]) for c in counts))
+        parts = [self._points(scan) for scan in scans]
+        coarse = np.concatenate([q[0] for q in parts]).reshape(-1, 2)
+        fine = np.concatenate([q[1] for q in parts]).reshape(-1, 2)
+        ext = _NO_STRETCHES
+        if any(len(q[2]) for q in parts):  # stretches for all (a scan without any: rows of none)
+            ext = np.concatenate([q[2] if len(q[2]) else np.zeros((len(q[1]), 6)) for q in parts])
+        spans = tuple(np.column_stack([at[:-1], at[1:]]) for at in (np.cumsum([0] + [len(q[k]) for q in parts]) for k in (0, 1)))
         best, scores, evals = self._search(maps, maps.table, np.full(len(scans), p), poses, coarse, fine, ext, spans, 1.0)
+        # the reads of each scan as `_count_field_reads` counts them, summed
+        samples = np.array([_fine_samples(len(f), e) for _, f, e in parts], dtype=np.int64)
         self.map_reads += len(coarse) * self._coarse_reads_per_point(maps.res) + 4 * int((evals * samples).sum())
         return self._finish(np.asarray(poses, dtype=np.float64), best, scores)[0]
 
@@ -619,29 +613,6 @@ class LikelihoodFieldMatcher(Matcher):
                 fine = np.union1d(fine, lone)
                 ext = np.ascontiguousarray(stretches[fine])
         return np.ascontiguousarray(xy[close[:: self.coarse_beam_step]]), np.ascontiguousarray(xy[fine]), ext
-
-    def _points_of_scans(self, scans: list[ScanPoints]) -> tuple[FloatArray, FloatArray, np.ndarray, np.ndarray]:
-        """`_points` of every scan at once when it thins by `isolated_filter` alone (no voxels,
-        no stretches): (coarse points, fine points, each scan's coarse count, fine count), the
-        points concatenated in scan order. The same points as scan by scan (a gap between two
-        scans' points never counts as a neighbour), without ~30 us of NumPy calls a scan."""
-        xy = np.concatenate([q.xy for q in scans]).reshape(-1, 2)
-        scan_of = np.repeat(np.arange(len(scans)), [len(q.xy) for q in scans])
-        use = np.ones(len(xy), dtype=bool)
-        if self.max_gap_m > 0:
-            near = np.zeros(len(xy), dtype=bool)
-            if len(xy) >= 2:
-                close = (np.hypot(*np.diff(xy, axis=0).T) <= self.max_gap_m) & (scan_of[1:] == scan_of[:-1])
-                near[:-1] |= close
-                near[1:] |= close
-            any_near = np.bincount(scan_of[near], minlength=len(scans)) > 0
-            use = near | ~any_near[scan_of]  # a scan whose points have no close neighbour keeps them all
-        kept = np.flatnonzero(use)
-        rank = np.arange(len(kept)) - np.searchsorted(scan_of[kept], scan_of[kept])  # place in its scan's kept points
-        coarse = kept[rank % self.coarse_beam_step == 0]
-        fine = kept[rank % self.beam_step == 0]
-        return (np.ascontiguousarray(xy[coarse]), np.ascontiguousarray(xy[fine]),
-                np.bincount(scan_of[coarse], minlength=len(scans)), np.bincount(scan_of[fine], minlength=len(scans)))
 
     def _count_field_reads(self, n: int, n_coarse: int, n_fine: int, evals: np.ndarray, ext: FloatArray, res_m: float | None = None) -> None:
         """Add the cells `n` particles' searches read: four per bilinear field value, except
