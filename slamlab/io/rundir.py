@@ -18,7 +18,7 @@ import os
 from dataclasses import dataclass, fields
 from enum import StrEnum
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -28,9 +28,6 @@ from slamlab.io.atomic import write_json, write_npz
 from slamlab.io.run_metrics import RunMetrics
 from slamlab.io.table import Table, read_csv
 from slamlab.io.tum import read_tum, write_tum
-
-if TYPE_CHECKING:
-    import pandas as pd
 
 
 class RunFile(StrEnum):
@@ -283,25 +280,11 @@ class RunDirectory:
         path = self.path / RunFile.MAP_LOGODDS
         return read_logodds(path) if path.is_file() else None
 
-    def read_steps(self) -> pd.DataFrame | None:
-        """The per-step table (steps.csv), None if absent."""
-        import pandas as pd
-
-        csv = self.path / RunFile.STEPS_CSV
-        return pd.read_csv(csv) if csv.is_file() else None
-
     def read_columns(self, name: RunFile) -> Table | None:
         """A CSV table of the run (steps.csv, relations.csv, consistency.csv) as NumPy columns
-        (`io.table.read_csv`: no pandas), None if absent."""
+        (`io.table.read_csv`: no pandas; `Table.to_pandas` for a DataFrame), None if absent."""
         path = self.path / name
         return read_csv(path) if path.is_file() else None
-
-    def read_table(self, name: RunFile) -> pd.DataFrame | None:
-        """A CSV table of the run (relations.csv, consistency.csv), None if absent."""
-        import pandas as pd
-
-        path = self.path / name
-        return pd.read_csv(path) if path.is_file() else None
 
     def read_particles(self) -> ParticleRecord | None:
         return _read_record(self.path / RunFile.PARTICLES, ParticleRecord)

@@ -3,9 +3,8 @@
 A run writes three tables (steps.csv, consistency.csv, relations.csv) of a few thousand rows.
 Building them as pandas DataFrames made every run import pandas, and with it pyarrow when it
 is installed: about 80 MB resident and 0.3 s of CPU, more than the Intel filter's maps at their
-peak. So the run keeps its tables as columns and writes the CSV text here; the run report
-reads them back with `read_csv` (`RunDirectory.read_columns`), the sweep report and tools
-with pandas (`RunDirectory.read_steps` / `read_table`), and `Table.to_pandas` converts one
+peak. So the run keeps its tables as columns and writes the CSV text here; the reports read
+them back with `read_csv` (`RunDirectory.read_columns`), and `Table.to_pandas` converts one
 where a DataFrame is wanted.
 
 The CSV text is what `DataFrame.to_csv(index=False, float_format=...)` writes for the same
