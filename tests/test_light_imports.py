@@ -18,23 +18,29 @@ def test_importing_does_not_pull_heavy_libraries(module):
     assert out.stdout.strip() == "", f"import {module} pulled in: {out.stdout.strip()}"
 
 
-@pytest.mark.slow
-def test_a_run_without_its_report_leaves_the_table_and_plot_libraries_out(tmp_path, sim_cache):
-    # pandas loads pyarrow when it is installed: together ~80 MB and 0.3 s a process. A run
-    # writes its tables itself (slamlab.io.table) and only the report reads them with pandas.
-    argv = ["slamlab", "dataset.duration_s=20", "particles=10", "report=false", f"dataset.cache_dir={sim_cache}",
-            f"hydra.run.dir={tmp_path / 'run'}", "progress=off"]
+def _run_in_a_child(argv: list[str]) -> list[str]:
+    """`slamlab argv` in a fresh interpreter; the lines it prints after the run: which of
+    pandas, pyarrow, matplotlib and jinja2 it loaded, and whether scipy.linalg."""
     code = (
         "import sys\nfrom slamlab.cli.app import main\n"
-        f"sys.argv = {argv!r}\n"
+        f"sys.argv = {['slamlab', *argv]!r}\n"
         "try:\n    main()\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
         "print('LOADED:', *sorted({m.split('.')[0] for m in sys.modules} & {'pandas', 'pyarrow', 'matplotlib', 'jinja2'}))\n"
         "print('scipy.linalg:', 'scipy.linalg' in sys.modules)"  # numba's BLAS probe, skipped by the CLI
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return out.stdout.splitlines()
+
+
+@pytest.mark.slow
+def test_a_run_without_its_report_leaves_the_table_and_plot_libraries_out(tmp_path, sim_cache):
+    # pandas loads pyarrow when it is installed: together ~80 MB and 0.3 s a process. A run
+    # writes its tables itself (slamlab.io.table).
+    lines = _run_in_a_child(["dataset.duration_s=20", "particles=10", "report=false", f"dataset.cache_dir={sim_cache}",
+                             f"hydra.run.dir={tmp_path / 'run'}", "progress=off"])
     assert (tmp_path / "run" / "steps.csv").is_file() and (tmp_path / "run" / "consistency.csv").is_file()
-    assert "scipy.linalg: False" in out.stdout.splitlines()
-    loaded = [line for line in out.stdout.splitlines() if line.startswith("LOADED:")]
+    assert "scipy.linalg: False" in lines
+    loaded = [line for line in lines if line.startswith("LOADED:")]
     assert loaded == ["LOADED:"], f"the run loaded: {loaded}"
 
 
@@ -42,18 +48,11 @@ def test_a_run_without_its_report_leaves_the_table_and_plot_libraries_out(tmp_pa
 def test_a_run_with_its_report_still_leaves_pandas_out(tmp_path, sim_cache):
     # the run report reads the run's tables as NumPy columns (io.table.read_csv) and smooths
     # them itself: pandas (0.2 s, ~25 MB) is for the sweep report alone
-    argv = ["slamlab", "dataset.duration_s=20", "particles=10", f"dataset.cache_dir={sim_cache}",
-            f"hydra.run.dir={tmp_path / 'run'}", "progress=off"]
-    code = (
-        "import sys\nfrom slamlab.cli.app import main\n"
-        f"sys.argv = {argv!r}\n"
-        "try:\n    main()\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
-        "print('LOADED:', *sorted({m.split('.')[0] for m in sys.modules} & {'pandas', 'pyarrow', 'matplotlib', 'jinja2'}))"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    lines = _run_in_a_child(["dataset.duration_s=20", "particles=10", f"dataset.cache_dir={sim_cache}",
+                             f"hydra.run.dir={tmp_path / 'run'}", "progress=off"])
     page = (tmp_path / "run" / "report.html").read_text()
     assert 'id="filter"' in page and "Error over time" in page  # the sections that read steps.csv and the errors
-    loaded = [line for line in out.stdout.splitlines() if line.startswith("LOADED:")]
+    loaded = [line for line in lines if line.startswith("LOADED:")]
     assert loaded == ["LOADED: jinja2 matplotlib"], f"the run loaded: {loaded}"
 
 
