@@ -15,6 +15,10 @@ Rows (median of `--repeat` runs; numba kernels come from the on-disk cache after
 `limit s` is that at 1 ns a read: the least time those reads take on one core (the physical
 limit beside each time). CPU is user + system of the process and its threads; peak is the process's peak
 resident memory as metrics.json reports it.
+This machine's speed drifts from hour to hour (other tenants share its cores), so the table ends
+with a reference taken before and after the rows: the seconds a fresh interpreter takes for
+`sum(range(10**8))` (median of 3; about 0.9 s when the machine is quiet). Compare tables of
+different hours only together with it.
 """
 
 from __future__ import annotations
@@ -69,6 +73,17 @@ def one_run(args: list[str], run_dir: Path) -> dict:
             "filter_s": m.get("runtime_s", float("nan"))}
 
 
+def machine_seconds(repeat: int = 3) -> float:
+    """Wall seconds of `sum(range(10**8))` in a fresh interpreter, median of `repeat`: the
+    machine's speed at the time, pure Python on one core (about 0.9 s when it is quiet)."""
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", "sum(range(10**8))"], check=True)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", default=",".join(ROWS))
@@ -78,6 +93,7 @@ def main() -> None:
                     help="a config override added to every run (repeatable), e.g. --set matcher.refine=gauss_newton")
     a = ap.parse_args()
     rows = []
+    speed_before = machine_seconds()
     with tempfile.TemporaryDirectory(prefix="slamlab-speed-") as tmp:
         out = a.out or Path(tmp)
         for name in a.only.split(","):
@@ -98,6 +114,8 @@ def main() -> None:
                 "met": all((med[k] >= v) if k == "x_realtime" else (med[k] <= v) for k, v in budget.items()),
             })
     print(pd.DataFrame(rows).to_string(index=False))
+    print(f"machine speed: sum(range(10**8)) took {speed_before:.2f} s before the rows, {machine_seconds():.2f} s after "
+          "(median of 3; about 0.9 s when the machine is quiet)")
 
 
 if __name__ == "__main__":
