@@ -1,7 +1,7 @@
 """The RBPF issue's acceptance numbers: robustness of `+experiment=lidar2d`, the hard simulated
 world `+experiment=sim_loops`, and the budgets, as tables.
 
-    .venv/bin/python benchmarks/bench_filters.py [--only lidar2d,sim_loops,timing] [--jobs 2] [--first-seed 0] [--steps 0.5,0.25] [--out DIR]
+    .venv/bin/python benchmarks/bench_filters.py [--only lidar2d,sim_loops,timing] [--jobs 2] [--first-seed 0] [--steps 0.5,0.25] [--set KEY=VALUE] [--out DIR]
 
 - lidar2d: Intel and ACES, seeds 0-4, at the preset's step thresholds and at half of them
   (the RBPF issue's budget cells; `--steps 0.2,0.1` runs other thresholds, e.g. the cells of the
@@ -20,6 +20,8 @@ world `+experiment=sim_loops`, and the budgets, as tables.
 - timing: one quiet, whole `slamlab +experiment=lidar2d` process per log, run alone: wall,
   CPU (user + system, both cores), peak resident memory of the process, map MB at the end
   and at peak. Budget (Intel): <= 40 s wall, <= 1 GB. GMapping on this machine: 57 s, 129 MB.
+`--set KEY=VALUE` (repeatable) adds a config override to every run: a candidate setting measured
+against the preset without editing it (e.g. `--set matcher.refine_levels=3`).
 Accuracy runs go `--jobs` at a time with one thread each: results do not depend on the
 thread count (tested), only their wall times do, which is why timing runs alone.
 """
@@ -45,12 +47,15 @@ LOGS = {"intel": 0.030, "aces": 0.050}  # budget: worst mean relation error (m)
 PRESET_STEP = 0.5  # lidar2d's steps.min_distance_m and min_angle_rad
 
 
+EXTRA_OVERRIDES: list[str] = []  # `--set`: added to every run (set once, in main)
+
+
 def slamlab(args: list[str], run_dir: Path, threads: int | None = None) -> dict:
     """Run one `slamlab` process; returns its metrics plus wall, CPU and peak memory."""
     env = dict(os.environ)
     if threads is not None:
         env["NUMBA_NUM_THREADS"] = str(threads)
-    cmd = [sys.executable, "-m", "slamlab.cli.app", *args, f"hydra.run.dir={run_dir}", "progress=off", "report=false"]
+    cmd = [sys.executable, "-m", "slamlab.cli.app", *args, *EXTRA_OVERRIDES, f"hydra.run.dir={run_dir}", "progress=off", "report=false"]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
@@ -183,7 +188,12 @@ def main() -> None:
     ap.add_argument("--steps", default=f"{PRESET_STEP},{PRESET_STEP / 2}",
                     help="lidar2d step thresholds (m and rad), comma list; the budget's are the preset's and half of them")
     ap.add_argument("--out", type=Path, default=None, help="keep the run folders here")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a config override added to every run (repeatable), e.g. --set matcher.refine_levels=3")
     args = ap.parse_args()
+    EXTRA_OVERRIDES.extend(args.set)
+    if args.set:
+        print("every run with:", " ".join(args.set))
     if data_dir() is None and any(p in args.only for p in ("lidar2d", "timing", "hospital")):
         raise SystemExit("shared data not found: set SLAMLAB_DATA_DIR")
     with tempfile.TemporaryDirectory(prefix="slamlab-bench-") as tmp:
