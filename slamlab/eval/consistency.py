@@ -106,9 +106,9 @@ def consistency_metrics(
     # every scan at once: per scan, the nine lookups cost a third of this function)
     on_map = np.concatenate(hit_cells) if hit_cells else np.zeros(0, np.int64)
     near = _near_wall(log_odds.data, settings.occupied_threshold, on_map // W, on_map % W)
-    if hit_cells:  # one entry per scan with endpoints, in order
-        ends = np.cumsum([len(h) for h in hit_cells])
-        near_count = np.array([part.sum() for part in np.split(near, ends[:-1])], dtype=np.float64)
+    if hit_cells:  # one entry per scan with endpoints, in order: count each one's near-wall endpoints
+        scan_of = np.repeat(np.arange(len(hit_cells)), [len(h) for h in hit_cells])
+        near_count = np.bincount(scan_of, weights=near, minlength=len(hit_cells))
         frac[n_points > 0] = near_count / n_points[n_points > 0]
     cell, hits = np.unique(on_map, return_counts=True)
     walls = hits >= MIN_HITS

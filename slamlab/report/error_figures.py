@@ -35,8 +35,9 @@ def ate_over_time(truth: Trajectory, estimates: dict[str, Trajectory | None]) ->
 def relation_error_over_time(table: Table) -> str:
     """Per-relation translation and rotation error versus the relation's start time:
     points per relation and a rolling median, for SLAM and odometry."""
-    order = np.argsort(np.asarray(table["t1"], float), kind="stable")
-    t1 = np.asarray(table["t1"], float)[order]
+    t1 = np.asarray(table["t1"], float)
+    order = np.argsort(t1, kind="stable")
+    t1 = t1[order]
     t = t1 - float(np.nanmin(t1))
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(13.0, 4.6), sharex=True)
     win = max(5, len(table) // 15)  # relations are noisy: smooth over several
