@@ -78,6 +78,18 @@ def _version(package: str) -> str | None:
         return None
 
 
+def _numba_threads() -> dict | None:
+    """The threading layer numba's parallel kernels ran on ("tbb", "omp" or "workqueue") and
+    its thread count, when a kernel started numba's threads in this process (else None)."""
+    numba = sys.modules.get("numba")
+    if numba is None:
+        return None
+    try:
+        return {"layer": numba.threading_layer(), "threads": int(numba.get_num_threads())}
+    except ValueError:  # no parallel kernel has run: no threads, no layer
+        return None
+
+
 def build_manifest(cfg: DictConfig, sources: list[str], overrides: list[str], cwd: str) -> dict:
     """The manifest.json content for a run."""
     return {
@@ -95,6 +107,7 @@ def build_manifest(cfg: DictConfig, sources: list[str], overrides: list[str], cw
             "numpy": _version("numpy"),
             "scipy": _version("scipy"),
             "numba": _version("numba"),
+            "numba_threads": _numba_threads(),
         },
         "config": OmegaConf.to_container(cfg, resolve=True),
     }

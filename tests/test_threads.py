@@ -1,0 +1,51 @@
+"""numba's threads: slamlab loads the `tbb` wheel's library so the parallel kernels run on
+TBB (slamlab/__init__.py), a layer the user names still wins, and the RBPF's results are
+the same bytes on TBB and on OpenMP. Each case is a fresh process: numba picks its threading
+layer once per process, at the first parallel kernel."""
+
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+TESTS = Path(__file__).parent
+
+# the RBPF on test_slam_engine's room (12 particles, both matchers' kernels and the tiled map
+# update), then the layer numba ran it on and the sha256 of the trajectory and map
+_ROOM_RUN = """
+import hashlib, sys
+sys.path.insert(0, {tests!r})
+import slamlab
+import numba
+from slamlab.assemble import build_components
+from slamlab.slam.engine import run_slam
+from test_slam_engine import _cfg, _room_sequence
+res = run_slam(_room_sequence(), build_components(_cfg("filter=rbpf", "particles=12", "seed=3", "matcher=likelihood")))
+sha = hashlib.sha256(res.trajectory.tobytes() + res.causal.tobytes() + res.log_odds.data.tobytes()).hexdigest()
+print(numba.threading_layer(), numba.get_num_threads(), sha)
+"""
+
+
+def _room(layer: str | None) -> tuple[str, int, str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_THREADING_LAYER", "NUMBA_NUM_THREADS")}
+    env["NUMBA_NUM_THREADS"] = "2"  # two threads even on a one-core runner: the schedule is what differs
+    if layer is not None:
+        env["NUMBA_THREADING_LAYER"] = layer
+    proc = subprocess.run([sys.executable, "-c", _ROOM_RUN.format(tests=str(TESTS))], env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    used, threads, sha = proc.stdout.split()[-3:]
+    return used, int(threads), sha
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (sys.platform == "linux" and platform.machine() == "x86_64"),
+                    reason="the tbb wheel is a dependency on Linux x86-64 only (pyproject.toml)")
+def test_rbpf_runs_on_tbb_by_default_and_gives_the_bytes_it_gives_on_openmp():
+    default = _room(None)
+    openmp = _room("omp")
+    assert default[:2] == ("tbb", 2), "slamlab should have loaded the tbb wheel's libtbb for numba"
+    assert openmp[:2] == ("omp", 2), "NUMBA_THREADING_LAYER, the user's choice, should win"
+    assert default[2] == openmp[2]
