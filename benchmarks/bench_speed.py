@@ -11,6 +11,8 @@ Rows (median of `--repeat` runs; numba kernels come from the on-disk cache after
   process (imports, reading the log, kernels, artifacts, report). Budget: <= 1.5 s CPU.
 `filter s` is the filter's own wall time (metrics.json's `runtime_s`), the part a matcher change moves;
 `--set` adds a config override to every run (e.g. `matcher.refine=gauss_newton` against the preset).
+`threads` is numba's threading layer and thread count as the run's manifest.json records them (`tbb x2`:
+TBB, two threads; `NUMBA_THREADING_LAYER=omp` in the environment measures OpenMP instead);
 `map reads` is metrics.json's `matcher_map_reads` (the cells the matcher's kernels read);
 `limit s` is that at 1 ns a read: the least time those reads take on one core (the physical
 limit beside each time). CPU is user + system of the process and its threads; peak is the process's peak
@@ -67,10 +69,12 @@ def one_run(args: list[str], run_dir: Path) -> dict:
     if proc.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{proc.stderr[-2000:]}")
     m = json.loads((run_dir / "metrics.json").read_text())
+    threads = json.loads((run_dir / "manifest.json").read_text())["platform"].get("numba_threads") or {}
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return {"wall_s": wall, "cpu_s": cpu, "peak_mb": m.get("peak_memory_mb", float("nan")),
             "x_realtime": m.get("realtime_factor") or float("nan"), "map_reads": m.get("matcher_map_reads", 0),
-            "filter_s": m.get("runtime_s", float("nan"))}
+            "filter_s": m.get("runtime_s", float("nan")),
+            "threads": f"{threads['layer']} x{threads['threads']}" if threads else "none"}
 
 
 def machine_seconds(repeat: int = 3) -> float:
@@ -100,7 +104,7 @@ def main() -> None:
             make_args, budget = ROWS[name]
             one_run(make_args() + a.set + ["steps.max_scans=1", "report=false"], out / f"{name}_warm")  # kernels, caches
             runs = [one_run(make_args() + a.set, out / f"{name}_{k}") for k in range(a.repeat)]
-            med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+            med = {k: statistics.median(r[k] for r in runs) for k in runs[0] if k != "threads"}
             rows.append({
                 "run": name,
                 "wall s": round(med["wall_s"], 2),
@@ -108,6 +112,7 @@ def main() -> None:
                 "filter s": round(med["filter_s"], 2),
                 "peak MB": round(med["peak_mb"]),
                 "x realtime": round(med["x_realtime"], 1),
+                "threads": runs[-1]["threads"],
                 "map reads": f"{med['map_reads']:.3g}",
                 "limit s": round(med["map_reads"] * NS_PER_READ * 1e-9, 2),
                 "budget": ", ".join(f"{k.replace('_', ' ')} {'>=' if k == 'x_realtime' else '<='} {v:g}" for k, v in budget.items()),
