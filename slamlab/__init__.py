@@ -19,10 +19,12 @@ def _load_tbb() -> None:
     numba tries TBB first and falls back to OpenMP, but pip puts libtbb in the
     environment's lib/ folder, where the dynamic loader does not look: loaded here by path,
     before any kernel starts numba's threads, it is the library numba's TBB layer links to.
-    Why: TBB hands the particles to whichever thread is free and its threads wait briefly
-    before they sleep, where OpenMP splits the particles in fixed halves and (passive) sleeps
-    at once: Intel's filter 10.2-12.4 s -> 9.4-11.1 s wall, the default sim run's 4.7-5.3 ->
-    3.7-4.3 s, the same trajectories (the kernels' results do not depend on the schedule).
+    Why: TBB's threads wait briefly before they sleep, where OpenMP's (passive) sleep at the
+    end of every parallel loop, thousands a run: Intel's filter 10.2-12.4 s -> 9.4-11.1 s
+    wall, the default sim run's 4.7-5.3 -> 3.7-4.3 s; and with the filter's loops handed out
+    one particle at a time (`engine.run_slam`) a TBB thread that is done takes the next, where
+    OpenMP splits every loop in fixed blocks. The same trajectories: the kernels' results do
+    not depend on the schedule.
     Skipped when the user chose a layer (NUMBA_THREADING_LAYER), when a TBB is loaded
     already (Open3D's own, too old for numba: a second copy must not load beside it), and
     where the wheel did not install one; numba then uses OpenMP as before."""

@@ -13,8 +13,9 @@ import pytest
 
 TESTS = Path(__file__).parent
 
-# the RBPF on test_slam_engine's room (12 particles, both matchers' kernels and the tiled map
-# update), then the layer numba ran it on and the sha256 of the trajectory and map
+# the RBPF on test_slam_engine's room (12 particles: the likelihood matcher's parallel search
+# and the tiled map update), then the layer numba ran it on and the sha256 of the trajectory,
+# the online path and the map
 _ROOM_RUN = """
 import hashlib, sys
 sys.path.insert(0, {tests!r})
