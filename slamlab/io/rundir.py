@@ -24,7 +24,7 @@ import numpy as np
 
 from slamlab.errors import DataError, SlamlabError
 from slamlab.frames import GridImage
-from slamlab.io.atomic import write_json, write_npz
+from slamlab.io.atomic import write_json, write_npz, write_npz_fast
 from slamlab.io.run_metrics import RunMetrics
 from slamlab.io.table import Table, read_csv
 from slamlab.io.tum import read_tum, write_tum
@@ -240,15 +240,17 @@ class RunDirectory:
         """times (N,) s; poses (N, 3) x m, y m, yaw rad."""
         write_tum(self.trajectory_path(which), times, poses)
 
+    # particles.npz and replay.npz at zlib level 1: the replay's map snapshots (4 MB on Intel) deflate in
+    # 0.03 s instead of 0.11 s; Intel's replay.npz is 1.03 MB instead of 0.89 MB
     def write_particles(self, record: ParticleRecord) -> None:
-        write_npz(self.path / RunFile.PARTICLES, **{f.name: getattr(record, f.name) for f in fields(record)})
+        write_npz_fast(self.path / RunFile.PARTICLES, **{f.name: getattr(record, f.name) for f in fields(record)})
 
     def write_first_scan(self, scan: FirstScan) -> None:
         write_npz(self.path / RunFile.FIRST_SCAN, **{f.name: getattr(scan, f.name) for f in fields(scan)})
 
     def write_replay(self, **arrays: np.ndarray) -> None:
         """replay.npz: the snapshot arrays of `slamlab.slam.replay` plus `scan_index`, `t`."""
-        write_npz(self.path / RunFile.REPLAY, **arrays)
+        write_npz_fast(self.path / RunFile.REPLAY, **arrays)
 
     # --- readers -------------------------------------------------------------------------
     def read_metrics(self) -> RunMetrics | None:

@@ -3,7 +3,6 @@ unit quaternion), z = 0 and the rotation about z only."""
 
 from __future__ import annotations
 
-import io
 import warnings
 from pathlib import Path
 
@@ -23,10 +22,9 @@ def tum_text(times: FloatArray, poses: FloatArray) -> str:
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     q = yaw_to_quaternion(poses[:, 2])
     table = np.column_stack([times, poses[:, 0], poses[:, 1], np.zeros(len(times)), q])
-    buf = io.StringIO()
-    buf.write("# timestamp x y z qx qy qz qw\n")
-    np.savetxt(buf, table, fmt=["%.6f"] + ["%.9f"] * 7)
-    return buf.getvalue()
+    # np.savetxt's bytes, formatted in one call instead of one per row (39-51 -> 26-32 ms for Intel's 13,631 rows)
+    row = "%.6f" + " %.9f" * 7 + "\n"
+    return "# timestamp x y z qx qy qz qw\n" + (row * len(table)) % tuple(table.ravel().tolist())
 
 
 def write_tum(path: Path, times: FloatArray, poses: FloatArray) -> None:
