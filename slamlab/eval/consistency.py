@@ -34,6 +34,7 @@ from slamlab.slam.scan import range_limits, scan_to_points
 WINDOW = 25  # scored scans per rolling median: the worst stretch of the run
 NEAR_M = 0.5  # crossings this close to a beam's own hit (m) are not counted as conflicts
 MIN_HITS = 4  # a cell is a wall of the replay when the sampled scans hit it this often
+CHUNK = 100  # scans placed at once (~18,000 points on Intel: a few MB of temporaries)
 
 
 def _near_wall(log_odds: np.ndarray, threshold: float, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -85,39 +86,42 @@ def consistency_metrics(
         r = np.floor((xy[:, 1] - oy) * inv).astype(np.int64)
         return r, c, (r >= 0) & (r < H) & (c >= 0) & (c < W)
 
-    # every scored scan's points, one array (the per-scan work below is done for all at once:
-    # per scan, NumPy's call overhead was most of this function's 0.3 s on Intel)
-    scans = [scan_to_points(sequence.scans[i], sequence.body_height_m, min_r, max_r, settings.ground_threshold_m) for i in pick]
-    n_points = np.array([len(p.xy) for p in scans], dtype=np.int64)  # endpoints of each scored scan
-    scan_of = np.repeat(np.arange(len(pick)), n_points)  # the scored scan of each point
-    body = np.concatenate([p.xy for p in scans]) if len(scans) else np.zeros((0, 2))
-    # each scan's rotation, one scalar np.cos / np.sin per scan as `points_to_world` takes it
-    # (an array call may round another way in the last bit)
-    cos = np.array([np.cos(poses[i, 2]) for i in pick], dtype=np.float64)
-    sin = np.array([np.sin(poses[i, 2]) for i in pick], dtype=np.float64)
-    world = _to_world(body, poses[pick][scan_of], cos[scan_of], sin[scan_of])
-    rows, cols, inside = cells(world)
-    # row * W + col of each sampled endpoint on the map (a building's map has 10^8 cells: hits
-    # are counted from this list, not in another map-sized array)
-    on_map = rows[inside] * W + cols[inside]
-    hit_scan = scan_of[inside]
-    # crossings: each beam walked up to NEAR_M short of its hit (a beam grazing a wall
-    # walks through that wall's own cells just before it, which is no conflict)
-    origins = np.array([p.origin for p in scans]).reshape(-1, 2)
-    sensor = _to_world(origins, poses[pick], cos, sin)
-    s_row, s_col, s_in = cells(sensor)
-    ray = world - sensor[scan_of]
-    length = np.hypot(ray[:, 0], ray[:, 1])
-    far = (length > NEAR_M) & s_in[scan_of]
-    short = sensor[scan_of[far]] + ray[far] * ((length[far] - NEAR_M) / length[far])[:, None]
-    e_row, e_col, e_in = cells(short)
-    walked = scan_of[far][e_in]
-    ends = np.searchsorted(walked, np.arange(len(pick) + 1))  # scan j walks ends[j]:ends[j + 1] (in scan order)
-    e_row, e_col = e_row[e_in], e_col[e_in]
-    for j in np.flatnonzero(ends[1:] > ends[:-1]):
-        # +1 on every cell of the shortened beam, its end included (free and hit deltas both 1)
-        a, b = ends[j], ends[j + 1]
-        raycast_update(passes, int(s_row[j]), int(s_col[j]), e_row[a:b], e_col[a:b], 1.0, 1.0, 0.0, 3.0e38, 0.5, no_flips)
+    # the scored scans' points are placed and looked up CHUNK scans at a time (per scan, NumPy's
+    # call overhead was most of this function's 0.3 s on Intel; all 1,000 at once held 18 MB more)
+    n_points = np.zeros(len(pick), dtype=np.int64)  # endpoints of each scored scan, on the map or not
+    on_map_parts, hit_scan_parts = [], []
+    for lo in range(0, len(pick), CHUNK):
+        chunk = pick[lo : lo + CHUNK]
+        scans = [scan_to_points(sequence.scans[i], sequence.body_height_m, min_r, max_r, settings.ground_threshold_m) for i in chunk]
+        n_points[lo : lo + len(chunk)] = [len(p.xy) for p in scans]
+        scan_of = np.repeat(np.arange(len(chunk)), n_points[lo : lo + len(chunk)])  # each point's scan in the chunk
+        # each scan's rotation, one scalar np.cos / np.sin per scan as `points_to_world` takes it
+        # (an array call may round another way in the last bit)
+        cos = np.array([np.cos(poses[i, 2]) for i in chunk], dtype=np.float64)
+        sin = np.array([np.sin(poses[i, 2]) for i in chunk], dtype=np.float64)
+        world = _to_world(np.concatenate([p.xy for p in scans]), poses[chunk][scan_of], cos[scan_of], sin[scan_of])
+        rows, cols, inside = cells(world)
+        # row * W + col of each sampled endpoint on the map (a building's map has 10^8 cells:
+        # hits are counted from this list, not in another map-sized array)
+        on_map_parts.append(rows[inside] * W + cols[inside])
+        hit_scan_parts.append(lo + scan_of[inside])
+        # crossings: each beam walked up to NEAR_M short of its hit (a beam grazing a wall
+        # walks through that wall's own cells just before it, which is no conflict)
+        sensor = _to_world(np.array([p.origin for p in scans]), poses[chunk], cos, sin)
+        s_row, s_col, s_in = cells(sensor)
+        ray = world - sensor[scan_of]
+        length = np.hypot(ray[:, 0], ray[:, 1])
+        far = (length > NEAR_M) & s_in[scan_of]
+        short = sensor[scan_of[far]] + ray[far] * ((length[far] - NEAR_M) / length[far])[:, None]
+        e_row, e_col, e_in = cells(short)
+        ends = np.searchsorted(scan_of[far][e_in], np.arange(len(chunk) + 1))  # scan j walks ends[j]:ends[j + 1]
+        e_row, e_col = e_row[e_in], e_col[e_in]
+        for j in np.flatnonzero(ends[1:] > ends[:-1]):
+            # +1 on every cell of the shortened beam, its end included (free and hit deltas both 1)
+            raycast_update(passes, int(s_row[j]), int(s_col[j]), e_row[ends[j] : ends[j + 1]], e_col[ends[j] : ends[j + 1]],
+                           1.0, 1.0, 0.0, 3.0e38, 0.5, no_flips)
+    on_map = np.concatenate(on_map_parts) if on_map_parts else np.zeros(0, np.int64)
+    hit_scan = np.concatenate(hit_scan_parts) if hit_scan_parts else np.zeros(0, np.int64)
     # each scan's hit fraction: its endpoints near a wall over all its endpoints (looked up for
     # every scan at once: per scan, the nine lookups cost a third of this function)
     near = _near_wall(log_odds.data, settings.occupied_threshold, on_map // W, on_map % W)
