@@ -189,22 +189,28 @@ def _splat(table, p, pool_lo, pool_f, ref, free, rel, used, kernel, r, c, b0, b1
             ca = max(c_lo, tc << TILE_SHIFT)
             cb = min(c_hi, (tc + 1) << TILE_SHIFT)
             t = table[p, tr, tc]
+            # the tile's rows [ra, rb) and cols [ca, cb), one contiguous run per row in both
+            # the tile and the kernel (loops the compiler vectorises)
+            i0 = ca & TILE_MASK
+            k0 = ca - c + R
+            n_c = cb - ca
             raise_needed = False
             for rr in range(ra, rb):
-                for cc in range(ca, cb):
-                    if kernel[rr - r + R, cc - c + R] > pool_f[t, rr & TILE_MASK, cc & TILE_MASK]:
+                dst = pool_f[t, rr & TILE_MASK, i0:i0 + n_c]
+                src = kernel[rr - r + R, k0:k0 + n_c]
+                for q in range(n_c):
+                    if src[q] > dst[q]:
                         raise_needed = True
-                        break
                 if raise_needed:
                     break
             if not raise_needed:
                 continue
             t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, rel, used)
             for rr in range(ra, rb):
-                for cc in range(ca, cb):
-                    i = rr & TILE_MASK
-                    j = cc & TILE_MASK
-                    pool_f[t, i, j] = max(pool_f[t, i, j], kernel[rr - r + R, cc - c + R])
+                dst = pool_f[t, rr & TILE_MASK, i0:i0 + n_c]
+                src = kernel[rr - r + R, k0:k0 + n_c]
+                for q in range(n_c):
+                    dst[q] = max(dst[q], src[q])
 
 
 @numba.njit(cache=True)
@@ -217,12 +223,26 @@ def _recompute(table, p, pool_lo, pool_f, ref, free, rel, used, thresh, kernel, 
     W = table.shape[2] * TILE
     R = kernel.shape[0] // 2
     new = np.zeros((b1 - b0, d1 - d0), dtype=kernel.dtype)
+    w_lo = max(d0 - R, 0)
+    w_hi = min(d1 + R, W)
     for r in range(max(b0 - R, 0), min(b1 + R, H)):
-        for c in range(max(d0 - R, 0), min(d1 + R, W)):
-            if pool_lo[table[p, r >> TILE_SHIFT, c >> TILE_SHIFT], r & TILE_MASK, c & TILE_MASK] > thresh:
-                for rr in range(max(r - R, b0), min(r + R + 1, b1)):
-                    for cc in range(max(c - R, d0), min(c + R + 1, d1)):
-                        new[rr - b0, cc - d0] = max(new[rr - b0, cc - d0], kernel[rr - r + R, cc - c + R])
+        # the window's row, one tile's run at a time (one table read per run, not per cell)
+        a = w_lo
+        while a < w_hi:
+            e = min(w_hi, ((a >> TILE_SHIFT) + 1) << TILE_SHIFT)
+            cells = pool_lo[table[p, r >> TILE_SHIFT, a >> TILE_SHIFT], r & TILE_MASK, a & TILE_MASK:((e - 1) & TILE_MASK) + 1]
+            for q0 in range(e - a):
+                if cells[q0] > thresh:
+                    c = a + q0
+                    c_lo = max(c - R, d0)
+                    n_c = min(c + R + 1, d1) - c_lo
+                    for rr in range(max(r - R, b0), min(r + R + 1, b1)):
+                        # one row: contiguous in both arrays (a loop the compiler vectorises)
+                        dst = new[rr - b0, c_lo - d0:c_lo - d0 + n_c]
+                        src = kernel[rr - r + R, c_lo - c + R:c_lo - c + R + n_c]
+                        for q in range(n_c):
+                            dst[q] = max(dst[q], src[q])
+            a = e
     for tr in range(b0 >> TILE_SHIFT, ((b1 - 1) >> TILE_SHIFT) + 1):
         for tc in range(d0 >> TILE_SHIFT, ((d1 - 1) >> TILE_SHIFT) + 1):
             t = table[p, tr, tc]
@@ -230,16 +250,27 @@ def _recompute(table, p, pool_lo, pool_f, ref, free, rel, used, thresh, kernel, 
             rb = min(b1, (tr + 1) << TILE_SHIFT)
             ca = max(d0, tc << TILE_SHIFT)
             cb = min(d1, (tc + 1) << TILE_SHIFT)
-            own = _owned(ref, t)
-            for rr in range(ra, rb):
-                for cc in range(ca, cb):
-                    v = new[rr - b0, cc - d0]
-                    if own:  # written even when unchanged: no branch on the value
-                        pool_f[t, rr & TILE_MASK, cc & TILE_MASK] = v
-                    elif v != pool_f[t, rr & TILE_MASK, cc & TILE_MASK]:
-                        t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, rel, used)
-                        own = True
-                        pool_f[t, rr & TILE_MASK, cc & TILE_MASK] = v
+            i0 = ca & TILE_MASK
+            n_c = cb - ca
+            if not _owned(ref, t):
+                # a shared tile is copied only when one of its values changes
+                same = True
+                for rr in range(ra, rb):
+                    src = new[rr - b0, ca - d0:ca - d0 + n_c]
+                    dst = pool_f[t, rr & TILE_MASK, i0:i0 + n_c]
+                    for q in range(n_c):
+                        if src[q] != dst[q]:
+                            same = False
+                    if not same:
+                        break
+                if same:
+                    continue
+                t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, rel, used)
+            for rr in range(ra, rb):  # the particle's own tile: written without looking
+                src = new[rr - b0, ca - d0:ca - d0 + n_c]
+                dst = pool_f[t, rr & TILE_MASK, i0:i0 + n_c]
+                for q in range(n_c):
+                    dst[q] = src[q]
 
 
 @numba.njit(cache=True)
