@@ -8,13 +8,13 @@ import pytest
 from slamlab.config.slam import CourseMotionConfig
 from slamlab.errors import ConfigError
 from slamlab.frames import ScanFrame
-from slamlab.geometry import rot_y, trans
+from slamlab.geometry import rot_y, rot_z, trans
 from slamlab.slam.grid import MapSettings, OccupancyGrid
 from slamlab.slam.matcher import GridMatcher, LikelihoodFieldMatcher, offset_grid
 from slamlab.slam.motion import CourseMotion, Odometry4Motion
 from slamlab.slam.raycast import bresenham, raycast_update, update_field
 from slamlab.slam.resample import MultinomialResampler, ResidualResampler, StratifiedResampler, SystematicResampler
-from slamlab.slam.scan import ScanPoints, scan_to_points
+from slamlab.slam.scan import ScanPoints, scan_to_points, scans_to_points
 from slamlab.slam.steps import fill_between_steps, select_steps
 from slamlab.slam.weighting import LinearWeighting, LogSumExpWeighting, WeightUnderflowWarning, effective_sample_size, logsumexp
 
@@ -119,6 +119,39 @@ def test_scan_to_points_drops_ground_hits():
     p = scan_to_points(f, 0.93, 0.1, 30.0, ground_threshold_m=0.1)
     assert len(p.xy) == 1
     np.testing.assert_allclose(p.xy[0], (rot_y(np.radians(30)) @ [1.0, 0, 0, 1])[:2] + 0.48 * np.sin(np.radians(30)) * np.array([1, 0]), atol=1e-9)
+
+
+def _random_frames(rng, n, l2b, pitch=0.0, zero_range=False):
+    """Frames of varying beam counts and angle sets, with invalid, NaN, short and long beams."""
+    frames = []
+    for i in range(n):
+        m = int(rng.integers(0, 40))
+        r = rng.uniform(0.0, 40.0, m)
+        r[rng.random(m) < 0.1] = np.nan
+        if zero_range and m:
+            r[0] = 0.0
+        angles = np.linspace(-np.pi / 2, np.pi / 2, m) if i % 2 else rng.uniform(-np.pi, np.pi, m)
+        f = _frame(r, angles, l2b=l2b, pitch=pitch)
+        f.valid[rng.random(m) < 0.1] = False
+        frames.append(f)
+    return frames
+
+
+@pytest.mark.parametrize("case", ["unrotated", "rotated", "pitched", "body_height", "zero_range"])
+def test_scans_to_points_is_scan_to_points(case):
+    # the batched projection (an unrotated planar mount: offsets added in one pass) and its
+    # fallbacks (anything else goes scan by scan) give scan_to_points' arrays to the bit
+    rng = np.random.default_rng(7)
+    l2b = rot_z(0.3) @ trans(x=0.2, y=-0.1) if case == "rotated" else trans(x=0.137, y=-0.021)
+    frames = _random_frames(rng, 60, l2b, pitch=0.1 if case == "pitched" else 0.0, zero_range=case == "zero_range")
+    height, lo = (0.9 if case == "body_height" else None), (0.0 if case == "zero_range" else 0.1)
+    got = scans_to_points(frames, height, lo, 30.0, 0.1)
+    batched = got[0].xy.base is not None and all(g.xy.base is got[0].xy.base for g in got)  # views of one array
+    assert batched == (case == "unrotated")
+    for g, f in zip(got, frames, strict=True):
+        want = scan_to_points(f, height, lo, 30.0, 0.1)
+        assert g.xy.shape == want.xy.shape and g.xy.flags.c_contiguous
+        assert g.xy.tobytes() == want.xy.tobytes() and g.origin.tobytes() == want.origin.tobytes()
 
 
 # ---------------------------------------------------------------- weighting, N_eff

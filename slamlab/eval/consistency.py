@@ -29,7 +29,7 @@ from slamlab.frames import GridImage, Sequence
 from slamlab.geometry import FloatArray
 from slamlab.slam.grid import MapSettings
 from slamlab.slam.raycast import raycast_update
-from slamlab.slam.scan import range_limits, scan_to_points
+from slamlab.slam.scan import range_limits, scans_to_points
 
 WINDOW = 25  # scored scans per rolling median: the worst stretch of the run
 NEAR_M = 0.5  # crossings this close to a beam's own hit (m) are not counted as conflicts
@@ -92,7 +92,7 @@ def consistency_metrics(
     on_map_parts, hit_scan_parts = [], []
     for lo in range(0, len(pick), CHUNK):
         chunk = pick[lo : lo + CHUNK]
-        scans = [scan_to_points(sequence.scans[i], sequence.body_height_m, min_r, max_r, settings.ground_threshold_m) for i in chunk]
+        scans = scans_to_points([sequence.scans[i] for i in chunk], sequence.body_height_m, min_r, max_r, settings.ground_threshold_m)
         n_points[lo : lo + len(chunk)] = [len(p.xy) for p in scans]
         scan_of = np.repeat(np.arange(len(chunk)), n_points[lo : lo + len(chunk)])  # each point's scan in the chunk
         # each scan's rotation, one scalar np.cos / np.sin per scan as `points_to_world` takes it

@@ -57,7 +57,7 @@ from slamlab.slam.odometry_scale import learn_scales, scaled_start
 from slamlab.slam.replay import ReplayRecorder, snapshot_steps
 from slamlab.slam.resample import Resampler
 from slamlab.slam.result import ParticleHistory, SlamResult
-from slamlab.slam.scan import points_to_world, range_limits, scan_to_points
+from slamlab.slam.scan import points_to_world, range_limits, scan_to_points, scans_to_points
 from slamlab.slam.spread import spread_columns
 from slamlab.slam.steps import fill_between_steps, select_steps
 from slamlab.slam.tiles import decode_image
@@ -201,8 +201,8 @@ def _run_filter(sequence: Sequence, c: Components, progress: Callable[[int, int]
             # the scans up to the next step, matched against the best particle's map as it is
             # now (causal): each scan's pose is its step's (+) the matched motion since
             nxt = step_scans[k + 1] if k + 1 < n_steps else len(scans)
-            seen = [(j, scan_to_points(scans[j], sequence.body_height_m, min_r, max_r, ms.ground_threshold_m)) for j in range(si + 1, nxt)]
-            seen = [(j, q) for j, q in seen if len(q.xy)]  # a scan with no points keeps its odometry
+            between_pts = scans_to_points([scans[j] for j in range(si + 1, nxt)], sequence.body_height_m, min_r, max_r, ms.ground_threshold_m)
+            seen = [(j, q) for j, q in zip(range(si + 1, nxt), between_pts) if len(q.xy)]  # a scan with no points keeps its odometry
             if seen:
                 js = np.array([j for j, _ in seen], dtype=np.int64)
                 since = se2_between(odom[si], odom[js])
