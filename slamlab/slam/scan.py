@@ -70,15 +70,15 @@ def scans_to_points(
 
     Planar logs whose lidar is mounted unrotated (the transform's rotation is the identity:
     every CARMEN log slamlab has read) are projected in one pass over all the frames. There
-    `scan_to_points`' product with the rotation adds x * 1 and y * 0 (in whatever order the
-    product sums), which is x exactly when x is not zero, i.e. for a beam longer than 0 (its y
-    column likewise; a zero y then meets the offset's +0.0 or nonzero value, one result either
-    way); so adding the mount's offset alone gives the same bits. A one-pass product would not: NumPy's
-    product of a one-row array can differ in its last bit from the same row in a larger one.
-    Anything else (a rotated mount, roll and pitch, a body height, a zero-length beam or a
-    -0.0 offset, where the sign of a zero sum could differ) goes through `scan_to_points`
-    one frame at a time. Why: per scan NumPy's call overhead was half of the ~20 us a scan
-    took, for the ~12,000 scans between Intel's filter steps."""
+    `scan_to_points`' product with the rotation sums x * 1 and y * 0 (in whatever order),
+    which is x exactly when x is not zero, i.e. for any beam longer than 0; likewise y, and
+    a zero y then meets a +0.0 or nonzero offset, one result either way. So adding the
+    mount's offset alone gives the same bits, where a one-pass product would not (NumPy's
+    product of a one-row array can differ in its last bit from the same row in a larger
+    one). Anything else (a rotated mount, roll and pitch, a body height, a zero-length beam,
+    a -0.0 offset) goes through `scan_to_points` one frame at a time. Why: NumPy's call
+    overhead was half of the ~20 us a scan took, for the ~12,000 scans between Intel's
+    filter steps."""
     def one_by_one() -> list[ScanPoints]:
         return [scan_to_points(f, body_height_m, min_range_m, max_range_m, ground_threshold_m) for f in frames]
 
@@ -120,9 +120,10 @@ _UNROTATED = np.eye(3)[:, :2]  # x and y columns of an unrotated transform's rot
 
 
 def _beam_trig(angles: np.ndarray) -> tuple[FloatArray, FloatArray]:
-    """cos and sin (float64) of a scan's beam angles (rad): computed once per distinct angle
-    array (a CARMEN log's scans all share one), each value the one np.cos / np.sin give that
-    angle in any array. They were ~9 us of the ~20 us each scan took."""
+    """cos and sin (float64) of a scan's beam angles (rad), computed once per distinct angle
+    array (a CARMEN log's scans all share one): ~9 us of the ~20 us a scan took. np.cos /
+    np.sin give an angle the same value in any array (every scan of Intel, ACES and the
+    hospital log, and the simulated THOR sequence, projected to the same bytes as before)."""
     return _beam_trig_of(angles.tobytes(), angles.dtype.str)
 
 
