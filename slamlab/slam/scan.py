@@ -71,8 +71,8 @@ def scans_to_points(
     Planar logs whose lidar is mounted unrotated (the transform's rotation is the identity:
     every CARMEN log slamlab has read) are projected in one pass over all the frames. There
     `scan_to_points`' product with the rotation sums x * 1 and y * 0 (in whatever order),
-    which is x exactly when x is not zero, i.e. for any beam longer than 0; likewise y, and
-    a zero y then meets a +0.0 or nonzero offset, one result either way. So adding the
+    which is x exactly when x is not zero; likewise y. A zero sum's sign may depend on the
+    order, but it then meets a +0.0 or nonzero offset: one result either way. So adding the
     mount's offset alone gives the same bits, where a one-pass product would not (NumPy's
     product of a one-row array can differ in its last bit from the same row in a larger
     one). Anything else (a rotated mount, roll and pitch, a body height, a zero-length beam,
@@ -130,7 +130,8 @@ def _beam_trig(angles: np.ndarray) -> tuple[FloatArray, FloatArray]:
 @lru_cache(maxsize=16)
 def _beam_trig_of(angles: bytes, dtype: str) -> tuple[FloatArray, FloatArray]:
     a = np.frombuffer(angles, dtype=dtype).astype(np.float64)
-    cos, sin = np.cos(a), np.sin(a)
+    with np.errstate(invalid="ignore"):  # an invalid beam's inf angle: its NaN is never kept
+        cos, sin = np.cos(a), np.sin(a)
     cos.flags.writeable = False  # shared between calls
     sin.flags.writeable = False
     return cos, sin
