@@ -29,7 +29,7 @@ from slamlab.frames import GridImage, Sequence
 from slamlab.geometry import FloatArray
 from slamlab.slam.grid import MapSettings
 from slamlab.slam.raycast import raycast_update
-from slamlab.slam.scan import range_limits, scans_to_points
+from slamlab.slam.scan import place, range_limits, scans_to_points
 
 WINDOW = 25  # scored scans per rolling median: the worst stretch of the run
 NEAR_M = 0.5  # crossings this close to a beam's own hit (m) are not counted as conflicts
@@ -48,14 +48,6 @@ def _near_wall(log_odds: np.ndarray, threshold: float, rows: np.ndarray, cols: n
             ok = (r >= 0) & (r < H) & (c >= 0) & (c < W)
             out[ok] |= log_odds[r[ok], c[ok]] > threshold
     return out
-
-
-def _to_world(xy: np.ndarray, pose: np.ndarray, cos: np.ndarray, sin: np.ndarray) -> np.ndarray:
-    """`points_to_world` with a pose per point: (M, 2) body-yaw points, (M, 3) poses and
-    their yaw's cos / sin (M,); the same operations in the same order, so the same bits."""
-    x = pose[:, 0] + cos * xy[:, 0] - sin * xy[:, 1]
-    y = pose[:, 1] + sin * xy[:, 0] + cos * xy[:, 1]
-    return np.stack([x, y], axis=1)
 
 
 def consistency_metrics(
@@ -99,7 +91,8 @@ def consistency_metrics(
         # (an array call may round another way in the last bit)
         cos = np.array([np.cos(poses[i, 2]) for i in chunk], dtype=np.float64)
         sin = np.array([np.sin(poses[i, 2]) for i in chunk], dtype=np.float64)
-        world = _to_world(np.concatenate([p.xy for p in scans]), poses[chunk][scan_of], cos[scan_of], sin[scan_of])
+        pose = poses[chunk][scan_of]
+        world = place(np.concatenate([p.xy for p in scans]), pose[:, 0], pose[:, 1], cos[scan_of], sin[scan_of])
         rows, cols, inside = cells(world)
         # row * W + col of each sampled endpoint on the map (a building's map has 10^8 cells:
         # hits are counted from this list, not in another map-sized array)
@@ -107,7 +100,7 @@ def consistency_metrics(
         hit_scan_parts.append(lo + scan_of[inside])
         # crossings: each beam walked up to NEAR_M short of its hit (a beam grazing a wall
         # walks through that wall's own cells just before it, which is no conflict)
-        sensor = _to_world(np.array([p.origin for p in scans]), poses[chunk], cos, sin)
+        sensor = place(np.array([p.origin for p in scans]).reshape(-1, 2), poses[chunk, 0], poses[chunk, 1], cos, sin)
         s_row, s_col, s_in = cells(sensor)
         ray = world - sensor[scan_of]
         length = np.hypot(ray[:, 0], ray[:, 1])

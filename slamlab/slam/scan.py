@@ -49,8 +49,7 @@ def scan_to_points(
     keep = frame.valid & np.isfinite(r) & (r >= min_range_m) & (r <= max_range_m)
     r = r[keep]
     cos, sin = _beam_trig(frame.angles)
-    height = 0.0 if body_height_m is None else float(body_height_m)
-    T = _lidar_in_body_yaw(float(frame.roll), float(frame.pitch), height, np.asarray(frame.lidar_to_body, dtype=np.float64).tobytes())
+    T = _frame_transform(frame, body_height_m)
     p = np.stack([r * cos[keep], r * sin[keep]], axis=1)
     # transform of (x, y, 0): only the first two columns of the rotation matter
     pts = p @ T[:3, :2].T + T[:3, 3]
@@ -92,7 +91,7 @@ def scans_to_points(
         key = (f.roll, f.pitch, id(f.lidar_to_body))
         if key not in mounts:
             mounts[key] = len(T)
-            T.append(_lidar_in_body_yaw(float(f.roll), float(f.pitch), 0.0, np.asarray(f.lidar_to_body, dtype=np.float64).tobytes()))
+            T.append(_frame_transform(f, None))
         which[i] = mounts[key]
     offset = np.array([t[:2, 3] for t in T])
     if not all(np.array_equal(t[:3, :2], _UNROTATED) for t in T) or np.any((offset == 0) & np.signbit(offset)):
@@ -137,6 +136,12 @@ def _beam_trig_of(angles: bytes, dtype: str) -> tuple[FloatArray, FloatArray]:
     return cos, sin
 
 
+def _frame_transform(frame: ScanFrame, body_height_m: float | None) -> FloatArray:
+    """The frame's lidar pose in the body-yaw frame (`_lidar_in_body_yaw`, cached)."""
+    height = 0.0 if body_height_m is None else float(body_height_m)
+    return _lidar_in_body_yaw(float(frame.roll), float(frame.pitch), height, np.asarray(frame.lidar_to_body, dtype=np.float64).tobytes())
+
+
 @lru_cache(maxsize=16)
 def _lidar_in_body_yaw(roll: float, pitch: float, height_m: float, lidar_to_body: bytes) -> FloatArray:
     """4x4 pose of the lidar in the body-yaw frame (the body at the origin with zero yaw:
@@ -157,7 +162,11 @@ def range_limits(settings: MapSettings, sequence: Sequence) -> tuple[float, floa
 
 def points_to_world(points_xy: FloatArray, pose: FloatArray) -> FloatArray:
     """Rotate (M, 2) body-yaw points by pose[2] (rad) and translate by pose[:2] (m)."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    x = pose[0] + c * points_xy[:, 0] - s * points_xy[:, 1]
-    y = pose[1] + s * points_xy[:, 0] + c * points_xy[:, 1]
-    return np.stack([x, y], axis=1)
+    return place(points_xy, pose[0], pose[1], np.cos(pose[2]), np.sin(pose[2]))
+
+
+def place(points_xy: FloatArray, x, y, cos, sin) -> FloatArray:
+    """(M, 2) body-yaw points rotated by the yaw whose cos / sin are given and moved by
+    (x, y) m: scalars for one pose, or (M,) arrays for a pose per point (the same operations
+    in the same order, so the same bits as `points_to_world` of each point's pose)."""
+    return np.stack([x + cos * points_xy[:, 0] - sin * points_xy[:, 1], y + sin * points_xy[:, 0] + cos * points_xy[:, 1]], axis=1)
