@@ -165,7 +165,7 @@ def points_to_world(points_xy: FloatArray, pose: FloatArray) -> FloatArray:
     return place(points_xy, pose[0], pose[1], np.cos(pose[2]), np.sin(pose[2]))
 
 
-def place(points_xy: FloatArray, x, y, cos, sin) -> FloatArray:
+def place(points_xy: FloatArray, x: float | FloatArray, y: float | FloatArray, cos: float | FloatArray, sin: float | FloatArray) -> FloatArray:
     """(M, 2) body-yaw points rotated by the yaw whose cos / sin are given and moved by
     (x, y) m: scalars for one pose, or (M,) arrays for a pose per point (the same operations
     in the same order, so the same bits as `points_to_world` of each point's pose)."""
