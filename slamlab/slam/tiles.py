@@ -171,6 +171,14 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, rel, used,
     return nflip
 
 
+@numba.njit(cache=True, inline="always")
+def _max_into(dst, src):
+    """dst = max(dst, src) element by element, over one row run (contiguous in both: a loop
+    the compiler vectorises)."""
+    for q in range(dst.shape[0]):
+        dst[q] = max(dst[q], src[q])
+
+
 @numba.njit(cache=True)
 def _splat(table, p, pool_lo, pool_f, ref, free, rel, used, kernel, r, c, b0, b1, d0, d1):
     """Raise particle p's field to the kernel centred on cell (r, c), within rows [b0, b1)
@@ -207,10 +215,7 @@ def _splat(table, p, pool_lo, pool_f, ref, free, rel, used, kernel, r, c, b0, b1
                 continue
             t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, rel, used)
             for rr in range(ra, rb):
-                dst = pool_f[t, rr & TILE_MASK, i0:i0 + n_c]
-                src = kernel[rr - r + R, k0:k0 + n_c]
-                for q in range(n_c):
-                    dst[q] = max(dst[q], src[q])
+                _max_into(pool_f[t, rr & TILE_MASK, i0:i0 + n_c], kernel[rr - r + R, k0:k0 + n_c])
 
 
 @numba.njit(cache=True)
@@ -237,11 +242,7 @@ def _recompute(table, p, pool_lo, pool_f, ref, free, rel, used, thresh, kernel, 
                     c_lo = max(c - R, d0)
                     n_c = min(c + R + 1, d1) - c_lo
                     for rr in range(max(r - R, b0), min(r + R + 1, b1)):
-                        # one row: contiguous in both arrays (a loop the compiler vectorises)
-                        dst = new[rr - b0, c_lo - d0:c_lo - d0 + n_c]
-                        src = kernel[rr - r + R, c_lo - c + R:c_lo - c + R + n_c]
-                        for q in range(n_c):
-                            dst[q] = max(dst[q], src[q])
+                        _max_into(new[rr - b0, c_lo - d0:c_lo - d0 + n_c], kernel[rr - r + R, c_lo - c + R:c_lo - c + R + n_c])
             a = e
     for tr in range(b0 >> TILE_SHIFT, ((b1 - 1) >> TILE_SHIFT) + 1):
         for tc in range(d0 >> TILE_SHIFT, ((d1 - 1) >> TILE_SHIFT) + 1):
