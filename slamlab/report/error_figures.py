@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from slamlab.io.table import Table
-from slamlab.report.figures import KIND_STYLE, fig_to_data_uri, plt, rolling_median
+from slamlab.report.figures import KIND_STYLE, fig_to_data_uri, rolling_median, subplots
 from slamlab.report.error_series import pose_errors
 from slamlab.report.rundir import Trajectory
 
@@ -19,7 +19,7 @@ from slamlab.report.rundir import Trajectory
 def ate_over_time(truth: Trajectory, estimates: dict[str, Trajectory | None]) -> str:
     """Translation and heading error versus time since the first scan, one line per
     estimate (keys of KIND_STYLE: "slam", "odometry")."""
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(13.0, 4.6), sharex=True)
+    fig, (a1, a2) = subplots(2, 1, figsize=(13.0, 4.6), sharex=True)
     t = truth.t - truth.t[0]
     for kind, est in estimates.items():
         if est is None:
@@ -39,7 +39,7 @@ def relation_error_over_time(table: Table) -> str:
     order = np.argsort(t1, kind="stable")
     t1 = t1[order]
     t = t1 - float(np.nanmin(t1))
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(13.0, 4.6), sharex=True)
+    fig, (a1, a2) = subplots(2, 1, figsize=(13.0, 4.6), sharex=True)
     win = max(5, len(table) // 15)  # relations are noisy: smooth over several
     for kind in ("odometry", "slam"):
         if f"{kind}_trans_m" not in table:

@@ -15,7 +15,7 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
 from slamlab.io.table import Table
-from slamlab.report.figures import KIND_STYLE, draw_map, plt, prepare_map, step_times
+from slamlab.report.figures import KIND_STYLE, cmap, draw_map, prepare_map, step_times, subplots
 from slamlab.report.rundir import FirstScan, LogOddsMap, ParticleRecord, Trajectory
 
 PARTICLE_COLOUR = "#1f77b4"
@@ -24,7 +24,7 @@ RESAMPLE_COLOUR = "#ff7f0e"
 
 def first_scan_figure(m: LogOddsMap | None, scan: FirstScan, figsize: tuple[float, float] = (8.0, 7.0)) -> Figure:
     """The map built from one scan, with that scan's points (world frame) and the lidar."""
-    fig, ax = plt.subplots(figsize=figsize)
+    fig, ax = subplots(figsize=figsize)
     pts = Trajectory(t=np.zeros(len(scan.points_xy)), xy=scan.points_xy, yaw=np.zeros(len(scan.points_xy)))
     draw_map(ax, prepare_map(m, 800, [pts], margin_m=0.5) if m is not None else None)
     ax.plot(scan.points_xy[:, 0], scan.points_xy[:, 1], ".", ms=2.5, color="#d62728",
@@ -51,7 +51,7 @@ def particle_paths_figure(
     odometry and the true path. Meaningful when particles are never resampled (predict
     mode): particle j at step k is then the same particle as at step k-1."""
     paths = np.transpose(rec.poses[:, :, :2], (1, 0, 2))  # (N, K, 2)
-    fig, ax = plt.subplots(figsize=figsize)
+    fig, ax = subplots(figsize=figsize)
     others = [t for t in (odometry, groundtruth) if t is not None]
     flat = Trajectory(t=np.zeros(paths.shape[0] * paths.shape[1]), xy=paths.reshape(-1, 2), yaw=np.zeros(0))
     draw_map(ax, prepare_map(m, 800, [flat, *others]) if m is not None else None)
@@ -77,7 +77,7 @@ def particle_paths_figure(
 def spread_figure(steps: Table) -> Figure:
     """Measured spread of the particle cloud against the spread the configured motion noise
     predicts (steps columns of a predict run), position (m) and heading (degrees)."""
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9.0, 5.0), sharex=True)
+    fig, (a1, a2) = subplots(2, 1, figsize=(9.0, 5.0), sharex=True)
     t = step_times(steps)
     for ax, col, scale, unit in ((a1, "xy_m", 1.0, "position spread (m)"), (a2, "theta_rad", 180.0 / np.pi, "heading spread (°)")):
         ax.plot(t, np.asarray(steps[f"spread_{col}"], float) * scale, lw=1.1, color=PARTICLE_COLOUR, label="measured (particles)")
@@ -106,11 +106,11 @@ def weights_figure(rec: ParticleRecord, first_steps: int = 100) -> Figure:
     when the run is longer (the report's table shows those)."""
     k, n = rec.weights.shape
     windows = [(0, k)] + ([(0, first_steps)] if k > first_steps else [])
-    fig, axes = plt.subplots(len(windows), 1, figsize=(9.0, 3.2 * len(windows)), squeeze=False)
-    cmap = plt.get_cmap("tab10")
+    fig, axes = subplots(len(windows), 1, figsize=(9.0, 3.2 * len(windows)), squeeze=False)
+    colours = cmap("tab10")
     for ax, (a, b) in zip(axes[:, 0], windows):
         steps = np.arange(a, b)
-        ax.stackplot(steps, rec.weights[a:b].T, colors=[cmap(i % 10) for i in range(n)],
+        ax.stackplot(steps, rec.weights[a:b].T, colors=[colours(i % 10) for i in range(n)],
                      labels=[f"particle {i}" for i in range(n)], step="post", alpha=0.9, lw=0)
         res = np.flatnonzero(rec.resampled[a:b]) + a
         if res.size:

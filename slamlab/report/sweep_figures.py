@@ -20,9 +20,9 @@ import pandas as pd
 from matplotlib.figure import Figure
 from PIL import Image, ImageDraw
 
-from slamlab.report.figures import DPI, Series, prepare_map  # sets the Agg backend
+from matplotlib.lines import Line2D
 
-import matplotlib.pyplot as plt  # noqa: E402  (after figures: headless backend first)
+from slamlab.report.figures import DPI, Series, cmap, prepare_map, subplots
 from slamlab.report.rundir import LogOddsMap, Trajectory
 
 PANELS_PER_ROW = 3
@@ -31,7 +31,7 @@ MIN_MAP_PX = 420  # a small map is enlarged by whole pixels up to this longest s
 
 def _colour(i: int, n: int = 10):
     """The i-th of n distinct colours (tab10, tab20 beyond ten)."""
-    return plt.get_cmap("tab10")(i % 10) if n <= 10 else plt.get_cmap("tab20")(i % 20)
+    return cmap("tab10")(i % 10) if n <= 10 else cmap("tab20")(i % 20)
 
 
 def _png_uri(data: bytes) -> str:
@@ -42,7 +42,6 @@ def _fixed_layout_uri(fig: Figure) -> str:
     """Save a figure whose margins were set by hand (no tight bounding box: one draw, not three)."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
-    plt.close(fig)
     return _png_uri(buf.getvalue())
 
 
@@ -61,7 +60,7 @@ def metric_panels(param: str, panels: Sequence[tuple[str, Sequence[Series]]],
     nrows = int(math.ceil(n / ncols))
     top_in = 0.25 + (0.25 * math.ceil(len(labels) / 4) if legend else 0.0)  # room for the legend rows
     height_in = 3.1 * nrows + top_in
-    fig, axes = plt.subplots(nrows, ncols, figsize=(4.6 * ncols, height_in), squeeze=False)
+    fig, axes = subplots(nrows, ncols, figsize=(4.6 * ncols, height_in), squeeze=False)
     fig.subplots_adjust(left=0.8 / (4.6 * ncols), right=1 - 0.2 / (4.6 * ncols), bottom=0.75 / height_in,
                         top=1 - top_in / height_in, wspace=0.38, hspace=0.45)
     for ax, (metric_label, series) in zip(axes.flat, panels):
@@ -82,7 +81,7 @@ def metric_panels(param: str, panels: Sequence[tuple[str, Sequence[Series]]],
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     if legend:
-        handles = [plt.Line2D([], [], color=_colour(i), marker="o", lw=1.3) for i in labels.values()]
+        handles = [Line2D([], [], color=_colour(i), marker="o", lw=1.3) for i in labels.values()]
         fig.legend(handles, list(labels), loc="upper center", bbox_to_anchor=(0.5, 1.0),
                    ncol=min(4, len(labels)), fontsize=9, frameon=False)
     return _fixed_layout_uri(fig)
@@ -101,7 +100,7 @@ def error_over_time(curves: Sequence[ErrorCurve], ylabel: str, smooth: bool) -> 
     """Every run's error against time on one axis, one colour per configuration (its seeds
     are lines of the same colour). `smooth`: draw a rolling median (~1/40 of the points),
     for per-relation errors that scatter widely around their trend."""
-    fig, ax = plt.subplots(figsize=(12.0, 4.0))
+    fig, ax = subplots(figsize=(12.0, 4.0))
     fig.subplots_adjust(left=0.06, right=0.74, bottom=0.13, top=0.96)  # legend right of the axes
     groups = list(dict.fromkeys(c.group for c in curves))
     for c in curves:
@@ -109,7 +108,7 @@ def error_over_time(curves: Sequence[ErrorCurve], ylabel: str, smooth: bool) -> 
         if smooth and y.size > 40:
             y = pd.Series(y).rolling(max(1, y.size // 40), center=True, min_periods=1).median().to_numpy()
         ax.plot(c.t, y, lw=1.0, alpha=0.85, color=_colour(groups.index(c.group), len(groups)))
-    handles = [plt.Line2D([], [], color=_colour(i, len(groups)), lw=1.6) for i in range(len(groups))]
+    handles = [Line2D([], [], color=_colour(i, len(groups)), lw=1.6) for i in range(len(groups))]
     ax.legend(handles, groups, loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
     ax.set_xlabel("time since the first scan (s)")
     ax.set_ylabel(ylabel)
