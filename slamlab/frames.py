@@ -43,6 +43,19 @@ class ScanFrame:
     pitch: float = 0.0
 
 
+@dataclass(frozen=True, slots=True)
+class ScanRows:
+    """Consecutive scans of one shape held as rows of a log's arrays: `ranges` (m, n, float32,
+    m) and `valid` (m, n) of the scans in order, their one beam `angles` array (n,) and lidar
+    mount `lidar_to_body`; roll and pitch 0 (a planar log). Row k is the `ScanFrame` of the
+    k-th scan without making one."""
+
+    ranges: np.ndarray
+    valid: np.ndarray
+    angles: np.ndarray
+    lidar_to_body: FloatArray
+
+
 class LazyScans(SequenceABC[ScanFrame]):
     """Scans in file order, each `ScanFrame` made when it is asked for (by `frame(i)`, i the
     scan's index in the log), so that a long log keeps its arrays and no object per scan.
@@ -76,6 +89,13 @@ class LazyScans(SequenceABC[ScanFrame]):
 
     def __iter__(self) -> Iterator[ScanFrame]:
         return map(self._frame, self._index.tolist())
+
+    def rows(self, start: int, stop: int) -> ScanRows | None:
+        """Scans start..stop-1 as one `ScanRows` when the source holds them so (consecutive
+        records of one shape sharing their beam angles, as a CARMEN log's are); None
+        otherwise: read them frame by frame."""
+        rows = getattr(self._frame, "rows", None)
+        return rows(self._index[start:stop]) if rows is not None and stop > start else None
 
 
 def scan_times(scans: SequenceABC[ScanFrame]) -> FloatArray:

@@ -18,6 +18,7 @@ from slamlab.errors import DataError
 from slamlab.frames import LazyScans
 from slamlab.eval.relations import match_times, relation_errors
 from slamlab.geometry import se2_between
+from slamlab.slam.scan import project_scans, scan_to_points
 
 
 
@@ -262,6 +263,31 @@ def test_scans_of_two_shapes_come_in_file_order_made_on_demand(tmp_path):
     assert part[0].index == 1 and np.array_equal(part[0].ranges, frames[1].ranges)
     back = pickle.loads(pickle.dumps(seq))  # a Sequence still pickles (e.g. to a worker process)
     assert [f.index for f in back.scans] == [0, 1, 2, 3, 4] and np.array_equal(back.scans[4].ranges, frames[4].ranges)
+
+
+def test_consecutive_scans_project_as_rows_like_frame_by_frame(tmp_path):
+    # consecutive records of one shape are handed out as 2D rows (LazyScans.rows) and
+    # projected without a frame per scan: the same points, to the bit, as scan_to_points of
+    # each frame; a range over records of two shapes has no rows and goes frame by frame
+    rng = np.random.default_rng(3)
+    widths = [5, 5, 5, 3, 5, 5]
+    lines = []
+    for k, w in enumerate(widths):
+        r = rng.uniform(0.05, 25.0, w).round(3)
+        r[rng.random(w) < 0.2] = np.nan  # invalid beams
+        lines.append(flaser(r, pose=(0.1 * k, 0.0, 0.01 * k), t=10.0 + k))
+    with pytest.warns(RuntimeWarning, match="NaN or inf range readings dropped"):
+        seq = load_carmen(write(tmp_path / "rows.clf", "\n".join(lines)))
+    scans = seq.scans
+    assert scans.rows(0, 3) is not None and scans.rows(4, 6) is not None
+    assert scans.rows(2, 5) is None and scans.rows(3, 3) is None  # two shapes; no scans
+    rows = scans.rows(0, 3)
+    assert rows.ranges.shape == (3, 5) and np.array_equal(rows.ranges[1], scans[1].ranges)
+    for start, stop in [(0, 3), (1, 2), (4, 6), (2, 5), (0, 6)]:
+        batch = project_scans(scans, start, stop, None, 0.1, 20.0, 0.1)
+        want = [scan_to_points(scans[j], None, 0.1, 20.0, 0.1).xy for j in range(start, stop)]
+        assert batch.counts.tolist() == [len(w) for w in want]
+        assert batch.xy.tobytes() == np.concatenate(want).tobytes()
 
 
 def test_robotlaser1_preferred_over_flaser_copies(tmp_path):

@@ -46,7 +46,7 @@ import numpy as np
 from slamlab.datasets.bad_lines import BadLines
 from slamlab.datasets.relations import DEFAULT_RELATIONS_TOL_S, relations_for_log
 from slamlab.errors import DataError
-from slamlab.frames import LazyScans, ScanFrame, Sequence, scan_times
+from slamlab.frames import LazyScans, ScanFrame, ScanRows, Sequence, scan_times
 from slamlab.geometry import rot_z, se2_between, trans, wrap_angle
 from slamlab.io.compressed import read_text
 from slamlab.config.datasets import CarmenDatasetConfig
@@ -498,6 +498,19 @@ class _RecordFrame:
             valid=b.valid[k],
             lidar_to_body=b.mount,
         )
+
+    def rows(self, records: np.ndarray) -> ScanRows | None:
+        """Records `records` (file order) as `ScanRows` when they are consecutive rows of one
+        block whose records share one beam-angle array (views, nothing copied); else None."""
+        j = self.block_of[records]
+        k = self.row_of[records]
+        if len(records) == 0 or not (j == j[0]).all() or not np.array_equal(k, np.arange(k[0], k[0] + len(k))):
+            return None
+        b = self.blocks[int(j[0])]
+        if b.angles.ndim != 1:
+            return None
+        rows = slice(int(k[0]), int(k[0]) + len(k))
+        return ScanRows(ranges=b.ranges[rows], valid=b.valid[rows], angles=b.angles, lidar_to_body=b.mount)
 
 
 def _frames(parsed: _ParsedLog) -> LazyScans:

@@ -51,13 +51,13 @@ from slamlab.geometry import FloatArray, se2_between, se2_compose, weighted_mean
 from slamlab.io.table import Table
 from slamlab.slam.filters import FilterKind
 from slamlab.slam.grid import MapSettings
-from slamlab.slam.matcher import Matcher
+from slamlab.slam.matcher import MatchPoints, Matcher
 from slamlab.slam.motion import MotionModel
 from slamlab.slam.odometry_scale import learn_scales, scaled_start
 from slamlab.slam.replay import ReplayRecorder, snapshot_steps
 from slamlab.slam.resample import Resampler
 from slamlab.slam.result import ParticleHistory, SlamResult
-from slamlab.slam.scan import points_to_world, range_limits, scan_to_points, scans_to_points
+from slamlab.slam.scan import ScanBatch, points_to_world, project_scans, range_limits, scan_to_points
 from slamlab.slam.spread import spread_columns
 from slamlab.slam.steps import fill_between_steps, select_steps
 from slamlab.slam.tiles import decode_image
@@ -104,6 +104,38 @@ def ancestral_path(hist_poses: FloatArray, hist_parent: np.ndarray, last: int) -
         path[k] = hist_poses[k, j]
         j = int(hist_parent[k, j])
     return path
+
+
+class _BetweenScans:
+    """The scans between filter steps (`steps.between=match`), projected and prepared for the
+    matcher `CHUNK` steps at a time: one pass of NumPy calls for a chunk instead of a few dozen
+    per step (Intel has 1,364 steps and 12,125 scans between them). Each scan's points do not
+    depend on the scans prepared with it."""
+
+    CHUNK = 16  # steps (Intel: ~150 scans, ~0.5 MB of points)
+
+    def __init__(self, step_scans: np.ndarray, n_scans: int, project: Callable[[int, int], ScanBatch],
+                 prepare: Callable[[ScanBatch], ScanBatch | MatchPoints]) -> None:
+        """`project(a, b)`: scans a..b-1's points; `prepare`: those as the matcher takes them."""
+        self._steps = np.asarray(step_scans, dtype=np.int64)
+        self._stop = np.append(self._steps[1:], n_scans)  # step k's scans between: steps[k] + 1 .. stop[k] - 1
+        self._prepare = prepare
+        self._project = project
+        self._first = self._last = -1  # the chunk held: steps first..last - 1, scans from _at
+        self._at = 0
+        self._prepared: ScanBatch | MatchPoints | None = None
+
+    def of_step(self, k: int) -> tuple[np.ndarray, ScanBatch | MatchPoints]:
+        """The scans between step k and the next that have points (their indices, scan order)
+        and those scans as `ParticleMaps.prepare_scans` gives them (a scan without points keeps
+        its odometry)."""
+        if not self._first <= k < self._last:
+            self._first, self._last = k, min(k + self.CHUNK, len(self._steps))
+            self._at = int(self._steps[k]) + 1
+            self._prepared = self._prepare(self._project(self._at, int(self._stop[self._last - 1])))
+        a, b = int(self._steps[k]) + 1, int(self._stop[k])
+        part = self._prepared.scans(a - self._at, b - self._at)
+        return np.arange(a, b, dtype=np.int64)[part.counts > 0], part.nonempty()
 
 
 def run_slam(
@@ -164,6 +196,11 @@ def _run_filter(sequence: Sequence, c: Components, progress: Callable[[int, int]
     resample_count = 0
     # steps.between=match: the matched motion of each scan between steps from its step (NaN: none)
     between = np.full((len(scans), 3), np.nan) if slam and c.between == "match" else None
+    if between is not None:
+        def project(a: int, b: int) -> ScanBatch:
+            return project_scans(scans, a, b, sequence.body_height_m, min_r, max_r, ms.ground_threshold_m)
+
+        between_scans = _BetweenScans(step_scans, len(scans), project, lambda batch: maps.prepare_scans(c.matcher, batch))
     t_loop = time.perf_counter()
     for k, si in enumerate(step_scans):
         t0 = time.perf_counter()
@@ -200,16 +237,13 @@ def _run_filter(sequence: Sequence, c: Components, progress: Callable[[int, int]
         if between is not None:
             # the scans up to the next step, matched against the best particle's map as it is
             # now (causal): each scan's pose is its step's (+) the matched motion since
-            nxt = step_scans[k + 1] if k + 1 < n_steps else len(scans)
-            between_pts = scans_to_points([scans[j] for j in range(si + 1, nxt)], sequence.body_height_m, min_r, max_r, ms.ground_threshold_m)
-            seen = [(j, q) for j, q in zip(range(si + 1, nxt), between_pts) if len(q.xy)]  # a scan with no points keeps its odometry
-            if seen:
-                js = np.array([j for j, _ in seen], dtype=np.int64)
+            js, pts_between = between_scans.of_step(k)
+            if len(js):
                 since = se2_between(odom[si], odom[js])
                 if scales is not None:  # the best particle's learnt odometry scale, as its steps use
                     since[:, :2] *= scales[best]
                 pred = se2_compose(poses[best], since)
-                matched = maps.match_scans(c.matcher, best, pred, [q for _, q in seen])
+                matched = maps.match_scans(c.matcher, best, pred, pts_between)
                 between[js] = se2_between(poses[best], matched)
         last = k == n_steps - 1
         want_snapshot = replay is not None and replay.wants(k)

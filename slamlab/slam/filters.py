@@ -23,9 +23,9 @@ import numpy as np
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
 from slamlab.slam.grid import MapSettings, OccupancyGrid
-from slamlab.slam.matcher import Matcher
+from slamlab.slam.matcher import MatchPoints, Matcher
 from slamlab.slam.replay import reduce_map, reduce_tiled_map
-from slamlab.slam.scan import ScanPoints, points_to_world
+from slamlab.slam.scan import ScanBatch, ScanPoints, points_to_world
 from slamlab.slam.tiles import TiledMaps
 
 
@@ -44,10 +44,14 @@ class ParticleMaps(ABC):
         """Scan-match every particle; returns (poses (N, 3), scores (N,)). `step_scale`: see
         `FilterKind.step_scale`."""
 
+    def prepare_scans(self, matcher: Matcher, scans: ScanBatch) -> ScanBatch | MatchPoints:
+        """Scans as `match_scans` takes them, prepared many at a time (here as they are)."""
+        return scans
+
     @abstractmethod
-    def match_scans(self, matcher: Matcher, p: int, poses: FloatArray, scans: list[ScanPoints]) -> FloatArray:
-        """Scan-match scans[i], predicted at poses[i] (S, 3), against particle p's map (the
-        maps stay as they are); returns the matched poses (S, 3)."""
+    def match_scans(self, matcher: Matcher, p: int, poses: FloatArray, scans: ScanBatch | MatchPoints) -> FloatArray:
+        """Scan-match scans[i] (none empty; from `prepare_scans`), predicted at poses[i] (S,
+        3), against particle p's map (the maps stay as they are); returns the matched poses (S, 3)."""
 
     @abstractmethod
     def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
@@ -87,10 +91,11 @@ class SharedMap(ParticleMaps):
     def match(self, matcher: Matcher, poses: FloatArray, scan: ScanPoints, step_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
         return matcher.match(self.grid, poses, scan)
 
-    def match_scans(self, matcher: Matcher, p: int, poses: FloatArray, scans: list[ScanPoints]) -> FloatArray:
+    def match_scans(self, matcher: Matcher, p: int, poses: FloatArray, scans: ScanBatch | MatchPoints) -> FloatArray:
+        assert isinstance(scans, ScanBatch), "the shared map matches scans as they are"
         out = np.empty((len(scans), 3))
-        for i, scan in enumerate(scans):
-            out[i] = matcher.match(self.grid, poses[i:i + 1], scan)[0][0]
+        for i in range(len(scans)):
+            out[i] = matcher.match(self.grid, poses[i:i + 1], scans.points(i))[0][0]
         return out
 
     def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
@@ -126,7 +131,10 @@ class PerParticleMaps(ParticleMaps):
         # a shorter step than the reference gets a proportionally narrower prior (sigma)
         return matcher.match_each(self.maps, poses, scan, prior_scale=step_scale**2)
 
-    def match_scans(self, matcher: Matcher, p: int, poses: FloatArray, scans: list[ScanPoints]) -> FloatArray:
+    def prepare_scans(self, matcher: Matcher, scans: ScanBatch) -> ScanBatch | MatchPoints:
+        return matcher.prepare_scans(scans)
+
+    def match_scans(self, matcher: Matcher, p: int, poses: FloatArray, scans: ScanBatch | MatchPoints) -> FloatArray:
         return matcher.match_scans(self.maps, p, poses, scans)
 
     def update(self, poses: FloatArray, scan: ScanPoints, best: int) -> None:
