@@ -217,3 +217,25 @@ def test_run_page_in_chromium_has_errors_over_time_ground_frames_and_a_working_r
         assert "ground" not in found["sections"]  # no RGB-D in a CARMEN log
         assert "rel. rotation error" in html and "odometry rel. error, the baseline" in html
         assert "online estimate&#39;s rel. error, local / loop relations" in html or "online estimate's rel. error, local / loop relations" in html
+
+
+def test_compiled_templates_kept_in_the_cache_folder_when_it_can_be_written(tmp_path, monkeypatch):
+    # a report process loads the page templates compiled by an earlier one (Jinja2's bytecode
+    # cache, keyed by the template source) and renders the same page; where the cache folder
+    # cannot be made, templates are compiled as before
+    import jinja2
+
+    from slamlab.report import html
+
+    def page(cache: jinja2.BytecodeCache | None) -> str:
+        env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(html.TEMPLATE_DIR)), bytecode_cache=cache)
+        return env.from_string("{% extends 'base.html' %}").render(title="t", generated="now", version="v")
+
+    monkeypatch.setenv("SLAMLAB_CACHE_DIR", str(tmp_path / "cache"))
+    first = page(html._compiled_templates())
+    kept = list((tmp_path / "cache" / "templates").glob("__jinja2_*.cache"))
+    assert len(kept) == 1 and kept[0].stat().st_size > 0
+    assert page(html._compiled_templates()) == first == page(None)
+    (tmp_path / "a_file").write_text("")
+    monkeypatch.setenv("SLAMLAB_CACHE_DIR", str(tmp_path / "a_file"))
+    assert html._compiled_templates() is None

