@@ -285,9 +285,10 @@ def test_consecutive_scans_project_as_rows_like_frame_by_frame(tmp_path):
     assert rows.ranges.shape == (3, 5) and np.array_equal(rows.ranges[1], scans[1].ranges)
     for start, stop in [(0, 3), (1, 2), (4, 6), (2, 5), (0, 6)]:
         batch = project_scans(scans, start, stop, None, 0.1, 20.0, 0.1)
-        want = [scan_to_points(scans[j], None, 0.1, 20.0, 0.1).xy for j in range(start, stop)]
-        assert batch.counts.tolist() == [len(w) for w in want]
-        assert batch.xy.tobytes() == np.concatenate(want).tobytes()
+        want = [scan_to_points(scans[j], None, 0.1, 20.0, 0.1) for j in range(start, stop)]
+        assert batch.counts.tolist() == [len(w.xy) for w in want]
+        assert batch.xy.tobytes() == np.concatenate([w.xy for w in want]).tobytes()
+        assert all(batch.points(i).origin.tobytes() == w.origin.tobytes() for i, w in enumerate(want))
 
 
 def test_robotlaser1_preferred_over_flaser_copies(tmp_path):

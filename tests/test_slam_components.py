@@ -363,13 +363,13 @@ def test_match_scans_gives_each_scan_what_matching_it_alone_gives(kind):
         has = [len(make()._points(scan)[2]) > 0 for scan in scans]
         assert any(has) and not all(has)
     batch, alone = make(), make()
-    got = batch.match_scans(maps, 1, poses, ScanBatch.join([s.xy for s in scans]))
+    got = batch.match_scans(maps, 1, poses, ScanBatch.of(scans))
     want = np.vstack([alone.match_each(maps, poses[i:i + 1], scan, tables=maps.table[1:2])[0] for i, scan in enumerate(scans)])
     assert got.tobytes() == want.tobytes() and batch.map_reads == alone.map_reads > 0
     assert not np.allclose(got, poses)
     # particle 1's map is what was matched: another particle's map moves the poses elsewhere
-    assert not np.array_equal(make().match_scans(maps, 2, poses, ScanBatch.join([s.xy for s in scans])), got)
-    assert make().match_scans(maps, 1, poses[:0], ScanBatch.join([])).shape == (0, 3)
+    assert not np.array_equal(make().match_scans(maps, 2, poses, ScanBatch.of(scans)), got)
+    assert make().match_scans(maps, 1, poses[:0], ScanBatch.of([])).shape == (0, 3)
 
 
 @pytest.mark.parametrize("max_gap_m, coarse_step, beam_step", [(0.6, 3, 1), (0.6, 2, 3), (0.0, 3, 2)])
@@ -381,7 +381,7 @@ def test_prepared_scans_pick_what_points_picks_scan_by_scan(max_gap_m, coarse_st
     xys = [np.cumsum(rng.normal(0.0, 0.3, (n, 2)), axis=0) for n in (40, 1, 25, 60)]
     xys.insert(2, np.arange(10.0).repeat(2).reshape(10, 2) * 2.0)  # every gap 2.8 m: no close neighbour
     m = LikelihoodFieldMatcher(max_gap_m=max_gap_m, coarse_beam_step=coarse_step, beam_step=beam_step)
-    got = m.prepare_scans(ScanBatch.join(xys))
+    got = m.prepare_scans(ScanBatch.of([ScanPoints(xy=xy, origin=np.zeros(2)) for xy in xys]))
     parts = [m._points(ScanPoints(xy=xy, origin=np.zeros(2))) for xy in xys]
     assert len(got.ext) == 0 and got.coarse.flags.c_contiguous and got.fine.flags.c_contiguous
     for i, (c, f, _) in enumerate(parts):
@@ -390,7 +390,7 @@ def test_prepared_scans_pick_what_points_picks_scan_by_scan(max_gap_m, coarse_st
     assert got.samples.tolist() == [len(f) for _, f, _ in parts]
     # a slice of the prepared scans is what preparing those scans alone gives
     part = got.scans(2, 5)
-    alone = m.prepare_scans(ScanBatch.join(xys[2:5]))
+    alone = m.prepare_scans(ScanBatch.of([ScanPoints(xy=xy, origin=np.zeros(2)) for xy in xys[2:5]]))
     assert all(getattr(part, k).tobytes() == getattr(alone, k).tobytes() for k in ("coarse", "fine", "coarse_ends", "fine_ends", "samples"))
     if max_gap_m > 0:  # the isolated-point filter did drop points somewhere, and kept the far-apart scan whole
         assert sum(len(f) for _, f, _ in parts) < sum(len(xy[::beam_step]) for xy in xys)

@@ -38,10 +38,12 @@ class ScanPoints:
 @dataclass(frozen=True, slots=True)
 class ScanBatch:
     """Several scans' points in one array: scan i's points (body-yaw frame, m) are rows
-    `ends[i]:ends[i + 1]` of `xy` (N, 2); `ends` (m + 1,) int64 starts at 0."""
+    `ends[i]:ends[i + 1]` of `xy` (N, 2) (`ends` (m + 1,) int64 starts at 0) and its lidar
+    centre is `origins[i]` (m, 2), as `ScanPoints` holds them for one scan."""
 
     xy: FloatArray
     ends: np.ndarray
+    origins: FloatArray
 
     def __len__(self) -> int:
         return len(self.ends) - 1
@@ -51,29 +53,26 @@ class ScanBatch:
         """(m,) points per scan."""
         return np.diff(self.ends)
 
-    def scan(self, i: int) -> FloatArray:
-        """Scan i's points (a view)."""
-        return self.xy[self.ends[i] : self.ends[i + 1]]
-
     def points(self, i: int) -> ScanPoints:
-        """Scan i as `ScanPoints` for a matcher, which reads the points alone: the batch holds
-        no lidar centre (NaN)."""
-        return ScanPoints(xy=self.scan(i), origin=np.full(2, np.nan))
+        """Scan i (its points a view)."""
+        return ScanPoints(xy=self.xy[self.ends[i] : self.ends[i + 1]], origin=self.origins[i])
 
     def scans(self, start: int, stop: int) -> ScanBatch:
-        """Scans start..stop-1 (their rows of `xy`, a view)."""
+        """Scans start..stop-1 (views)."""
         lo, hi = int(self.ends[start]), int(self.ends[stop])
-        return ScanBatch(self.xy[lo:hi], self.ends[start : stop + 1] - lo)
+        return ScanBatch(self.xy[lo:hi], self.ends[start : stop + 1] - lo, self.origins[start:stop])
 
     def nonempty(self) -> ScanBatch:
         """The scans that have points (the same points: an empty scan holds none)."""
-        return ScanBatch(self.xy, np.concatenate([[0], self.ends[1:][self.counts > 0]]).astype(np.int64))
+        keep = self.counts > 0
+        return ScanBatch(self.xy, np.concatenate([[0], self.ends[1:][keep]]).astype(np.int64), self.origins[keep])
 
     @staticmethod
-    def join(xys: SequenceABC[FloatArray]) -> ScanBatch:
-        """The batch of scans whose points are `xys` ((M_i, 2) each)."""
-        ends = np.concatenate([[0], np.cumsum([len(q) for q in xys], dtype=np.int64)]).astype(np.int64)
-        return ScanBatch(np.concatenate(xys).reshape(-1, 2) if len(xys) else np.empty((0, 2)), ends)
+    def of(scans: SequenceABC[ScanPoints]) -> ScanBatch:
+        """The batch of these scans (their points copied into one array)."""
+        ends = np.concatenate([[0], np.cumsum([len(q.xy) for q in scans], dtype=np.int64)]).astype(np.int64)
+        xy = np.concatenate([q.xy for q in scans]).reshape(-1, 2) if len(scans) else np.empty((0, 2))
+        return ScanBatch(xy, ends, np.array([q.origin for q in scans], dtype=np.float64).reshape(-1, 2))
 
 
 def scan_to_points(
@@ -178,8 +177,7 @@ def project_scans(
     rows = scans.rows(start, stop) if body_height_m is None and isinstance(scans, LazyScans) else None
     batch = _rows_to_points(rows, min_range_m, max_range_m) if rows is not None else None
     if batch is None:
-        pts = scans_to_points([scans[j] for j in range(start, stop)], body_height_m, min_range_m, max_range_m, ground_threshold_m)
-        batch = ScanBatch.join([q.xy for q in pts])
+        batch = ScanBatch.of(scans_to_points([scans[j] for j in range(start, stop)], body_height_m, min_range_m, max_range_m, ground_threshold_m))
     return batch
 
 
@@ -199,7 +197,8 @@ def _rows_to_points(rows: ScanRows, min_range_m: float, max_range_m: float) -> S
     xy = np.empty((len(r), 2))
     xy[:, 0] = r * np.broadcast_to(cos, keep.shape)[keep] + offset[0]
     xy[:, 1] = r * np.broadcast_to(sin, keep.shape)[keep] + offset[1]
-    return ScanBatch(xy, np.concatenate([[0], np.cumsum(keep.sum(axis=1))]).astype(np.int64))
+    origins = np.broadcast_to(T[:2, 3], (len(keep), 2))  # one mount: one lidar centre (read-only)
+    return ScanBatch(xy, np.concatenate([[0], np.cumsum(keep.sum(axis=1))]).astype(np.int64), origins)
 
 
 def _beam_trig(angles: np.ndarray) -> tuple[FloatArray, FloatArray]:
