@@ -45,9 +45,9 @@ class ScanFrame:
 
 @dataclass(frozen=True, slots=True)
 class ScanRows:
-    """Consecutive scans of one shape held as rows of a log's arrays: `ranges` (m, n, float32,
-    m) and `valid` (m, n) of the scans in order, their one beam `angles` array (n,) and lidar
-    mount `lidar_to_body`; roll and pitch 0 (a planar log). Row k is the `ScanFrame` of the
+    """Consecutive scans of one shape held as rows of a log's arrays: `ranges` ((m, n)
+    float32, metres) and `valid` (m, n) of the scans in order, their one beam `angles` array
+    (n,) and lidar mount `lidar_to_body`; roll and pitch 0 (a planar log). Row k is the `ScanFrame` of the
     k-th scan without making one."""
 
     ranges: np.ndarray
@@ -94,8 +94,9 @@ class LazyScans(SequenceABC[ScanFrame]):
         """Scans start..stop-1 as one `ScanRows` when the source holds them so (consecutive
         records of one shape sharing their beam angles, as a CARMEN log's are); None
         otherwise: read them frame by frame."""
-        rows = getattr(self._frame, "rows", None)
-        return rows(self._index[start:stop]) if rows is not None and stop > start else None
+        records = self._index[start:stop]
+        rows = getattr(self._frame, "rows", None)  # a source that holds its scans as rows (`carmen._RecordFrame`)
+        return rows(records) if rows is not None and 0 < len(records) == stop - start else None
 
 
 def scan_times(scans: SequenceABC[ScanFrame]) -> FloatArray:

@@ -269,6 +269,30 @@ def test_scans_between_steps_matched_causally_leave_the_filter_alone(filt):
     assert one.causal.tobytes() == mat.causal.tobytes() and one.trajectory.tobytes() == mat.trajectory.tobytes()
 
 
+@pytest.mark.slow
+def test_scans_between_steps_prepared_in_chunks_whatever_the_chunk(monkeypatch):
+    """The scans between steps are prepared a chunk of steps at a time (`_BetweenScans`): the
+    run is the same, to the bit, one step at a time, with scans that have no points at the
+    start, inside and at the end of a chunk (they keep their odometry)."""
+    import dataclasses
+
+    from slamlab.slam import engine
+
+    room = _room_sequence()
+    blank = {1, 30, 59}  # steps every 4th scan of 60: scans 1 and 59 open and close the one 15-step chunk
+    seq = dataclasses.replace(room, scans=[dataclasses.replace(f, valid=np.zeros_like(f.valid)) if i in blank else f
+                                           for i, f in enumerate(room.scans)])
+    keys = ("filter=rbpf", "particles=10", "matcher=likelihood", "matcher.max_gap_m=0.6", "seed=2", "steps.every=4",
+            "steps.between=match")
+    chunked = run_slam(seq, build_components(_cfg(*keys)))
+    monkeypatch.setattr(engine._BetweenScans, "CHUNK_STEPS", 1)
+    one = run_slam(seq, build_components(_cfg(*keys)))
+    assert chunked.causal.tobytes() == one.causal.tobytes() and chunked.trajectory.tobytes() == one.trajectory.tobytes()
+    odo = run_slam(seq, build_components(_cfg(*keys[:-1])))  # the scans between steps filled by odometry
+    assert all(chunked.causal[i].tobytes() == odo.causal[i].tobytes() for i in blank)
+    assert not np.array_equal(chunked.causal[40:], odo.causal[40:])  # the scans with points were matched
+
+
 def test_steps_between_is_checked():
     from slamlab.errors import ConfigError
 

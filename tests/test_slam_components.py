@@ -380,6 +380,7 @@ def test_prepared_scans_pick_what_points_picks_scan_by_scan(max_gap_m, coarse_st
     rng = np.random.default_rng(11)
     xys = [np.cumsum(rng.normal(0.0, 0.3, (n, 2)), axis=0) for n in (40, 1, 25, 60)]
     xys.insert(2, np.arange(10.0).repeat(2).reshape(10, 2) * 2.0)  # every gap 2.8 m: no close neighbour
+    xys = [np.empty((0, 2))] + xys[:3] + [np.empty((0, 2))] + xys[3:] + [np.empty((0, 2))]  # scans without points
     m = LikelihoodFieldMatcher(max_gap_m=max_gap_m, coarse_beam_step=coarse_step, beam_step=beam_step)
     got = m.prepare_scans(ScanBatch.of([ScanPoints(xy=xy, origin=np.zeros(2)) for xy in xys]))
     parts = [m._points(ScanPoints(xy=xy, origin=np.zeros(2))) for xy in xys]
@@ -389,12 +390,12 @@ def test_prepared_scans_pick_what_points_picks_scan_by_scan(max_gap_m, coarse_st
         assert got.fine[got.fine_ends[i]:got.fine_ends[i + 1]].tobytes() == f.tobytes()
     assert got.samples.tolist() == [len(f) for _, f, _ in parts]
     # a slice of the prepared scans is what preparing those scans alone gives
-    part = got.scans(2, 5)
-    alone = m.prepare_scans(ScanBatch.of([ScanPoints(xy=xy, origin=np.zeros(2)) for xy in xys[2:5]]))
+    part = got.scans(3, 7)
+    alone = m.prepare_scans(ScanBatch.of([ScanPoints(xy=xy, origin=np.zeros(2)) for xy in xys[3:7]]))
     assert all(getattr(part, k).tobytes() == getattr(alone, k).tobytes() for k in ("coarse", "fine", "coarse_ends", "fine_ends", "samples"))
     if max_gap_m > 0:  # the isolated-point filter did drop points somewhere, and kept the far-apart scan whole
         assert sum(len(f) for _, f, _ in parts) < sum(len(xy[::beam_step]) for xy in xys)
-        assert len(parts[2][1]) == len(xys[2][::beam_step])
+        assert len(parts[3][1]) == len(xys[3][::beam_step])
 
 
 def test_offset_grid_sizes_and_order():

@@ -18,9 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
-from PIL import Image, ImageDraw
-
 from matplotlib.lines import Line2D
+from PIL import Image, ImageDraw
 
 from slamlab.report.figures import DPI, Series, cmap, prepare_map, subplots
 from slamlab.report.rundir import LogOddsMap, Trajectory

@@ -108,11 +108,14 @@ def ancestral_path(hist_poses: FloatArray, hist_parent: np.ndarray, last: int) -
 
 class _BetweenScans:
     """The scans between filter steps (`steps.between=match`), projected and prepared for the
-    matcher `CHUNK` steps at a time: one pass of NumPy calls for a chunk instead of a few dozen
-    per step (Intel has 1,364 steps and 12,125 scans between them). Each scan's points do not
-    depend on the scans prepared with it."""
+    matcher `CHUNK_STEPS` steps (at most `CHUNK_SCANS` scans) at a time: one pass of NumPy
+    calls for a chunk instead of a few dozen per step (Intel has 1,364 steps and 12,125 scans
+    between them). Each scan's points do not depend on the scans prepared with it (tests:
+    `test_prepared_scans_pick_what_points_picks_scan_by_scan`, `project_scans`' in
+    test_carmen). Steps are asked for in order, each once (`of_step`)."""
 
-    CHUNK = 16  # steps (Intel: ~150 scans, ~0.5 MB of points)
+    CHUNK_STEPS = 16
+    CHUNK_SCANS = 2000  # at most ~0.5 MB of Intel's points however far apart the steps lie
 
     def __init__(self, step_scans: np.ndarray, n_scans: int, project: Callable[[int, int], ScanBatch],
                  prepare: Callable[[ScanBatch], ScanBatch | MatchPoints]) -> None:
@@ -121,18 +124,25 @@ class _BetweenScans:
         self._stop = np.append(self._steps[1:], n_scans)  # step k's scans between: steps[k] + 1 .. stop[k] - 1
         self._prepare = prepare
         self._project = project
-        self._first = self._last = -1  # the chunk held: steps first..last - 1, scans from _at
+        self._last = -1  # the chunk held serves steps up to _last - 1, its scans from _at
         self._at = 0
-        self._prepared: ScanBatch | MatchPoints | None = None
+        self._prepared: ScanBatch | MatchPoints = ScanBatch.of([])
+        self.spent_s = 0.0  # wall seconds the last `of_step` spent preparing a chunk (0: none)
+        self.share_s = 0.0  # the held chunk's preparation per step it serves
 
     def of_step(self, k: int) -> tuple[np.ndarray, ScanBatch | MatchPoints]:
         """The scans between step k and the next that have points (their indices, scan order)
         and those scans as `ParticleMaps.prepare_scans` gives them (a scan without points keeps
         its odometry)."""
-        if not self._first <= k < self._last:
-            self._first, self._last = k, min(k + self.CHUNK, len(self._steps))
+        self.spent_s = 0.0
+        if k >= self._last:
+            t0 = time.perf_counter()
             self._at = int(self._steps[k]) + 1
+            fits = int(np.searchsorted(self._stop, self._at + self.CHUNK_SCANS, side="right"))
+            self._last = max(k + 1, min(k + self.CHUNK_STEPS, fits, len(self._steps)))
             self._prepared = self._prepare(self._project(self._at, int(self._stop[self._last - 1])))
+            self.spent_s = time.perf_counter() - t0
+            self.share_s = self.spent_s / (self._last - k)
         a, b = int(self._steps[k]) + 1, int(self._stop[k])
         part = self._prepared.scans(a - self._at, b - self._at)
         return np.arange(a, b, dtype=np.int64)[part.counts > 0], part.nonempty()
@@ -196,11 +206,11 @@ def _run_filter(sequence: Sequence, c: Components, progress: Callable[[int, int]
     resample_count = 0
     # steps.between=match: the matched motion of each scan between steps from its step (NaN: none)
     between = np.full((len(scans), 3), np.nan) if slam and c.between == "match" else None
-    if between is not None:
-        def project(a: int, b: int) -> ScanBatch:
-            return project_scans(scans, a, b, sequence.body_height_m, min_r, max_r, ms.ground_threshold_m)
 
-        between_scans = _BetweenScans(step_scans, len(scans), project, lambda batch: maps.prepare_scans(c.matcher, batch))
+    def project(a: int, b: int) -> ScanBatch:
+        return project_scans(scans, a, b, sequence.body_height_m, min_r, max_r, ms.ground_threshold_m)
+
+    between_scans = _BetweenScans(step_scans, len(scans), project, lambda batch: maps.prepare_scans(c.matcher, batch))  # used when `between`
     t_loop = time.perf_counter()
     for k, si in enumerate(step_scans):
         t0 = time.perf_counter()
@@ -268,7 +278,10 @@ def _run_filter(sequence: Sequence, c: Components, progress: Callable[[int, int]
         rows["neff"].append(neff)
         rows["resampled"].append(resampled)
         rows["best_weight"].append(float(w[best]))
-        rows["step_time_s"].append(time.perf_counter() - t0)
+        step_s = time.perf_counter() - t0
+        if between is not None:  # a chunk's preparation shared among the steps it serves
+            step_s += between_scans.share_s - between_scans.spent_s
+        rows["step_time_s"].append(step_s)
         if progress is not None and progress(len(scans) if k == n_steps - 1 else int(si) + 1, len(scans)):
             if k < n_steps - 1:  # asked to stop (Ctrl-C): the result of a run that ended here
                 survivors = np.flatnonzero(parent == best) if resampled else [best]

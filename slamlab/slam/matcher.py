@@ -407,7 +407,10 @@ class MatchPoints:
     def scans(self, start: int, stop: int) -> MatchPoints:
         """Scans start..stop-1 (views)."""
         c0, c1, f0, f1 = (int(e) for e in (self.coarse_ends[start], self.coarse_ends[stop], self.fine_ends[start], self.fine_ends[stop]))
-        return MatchPoints(self.coarse[c0:c1], self.fine[f0:f1], self.ext[f0:f1] if len(self.ext) else self.ext,
+        ext = self.ext[f0:f1]
+        if not ext[:, 2:4].any():  # no stretch among these scans: the climb's plain (vectorised) score
+            ext = _NO_STRETCHES
+        return MatchPoints(self.coarse[c0:c1], self.fine[f0:f1], ext,
                            self.coarse_ends[start:stop + 1] - c0, self.fine_ends[start:stop + 1] - f0, self.samples[start:stop])
 
     def nonempty(self) -> MatchPoints:
@@ -420,14 +423,17 @@ class MatchPoints:
 def _picked_rows(scans: ScanBatch, max_gap_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Over the batch's points: which ones `_points` keeps in their scan (with a scan
     neighbour within `max_gap_m`, or every point of a scan where none has one), and a kept
-    point's place among its scan's kept ones."""
+    point's place among its scan's kept ones (meaningless where a point is not kept)."""
     if not max_gap_m > 0:
         pick = np.ones(len(scans.xy), dtype=bool)
     else:
         near = np.zeros(len(scans.xy), dtype=bool)
         if len(scans.xy) >= 2:
             close = np.hypot(*np.diff(scans.xy, axis=0).T) <= max_gap_m  # as has_close_neighbour
-            close[scans.ends[1:-1] - 1] = False  # a scan's last point and the next scan's first are no neighbours
+            # a scan's last point and the next scan's first are no neighbours (ends at 0 or N:
+            # empty scans at the batch's edges, where no gap lies between two scans)
+            inner = scans.ends[1:-1]
+            close[inner[(inner > 0) & (inner < len(scans.xy))] - 1] = False
             near[:-1] |= close
             near[1:] |= close
         scan_has = np.diff(_running_count(near)[scans.ends]) > 0

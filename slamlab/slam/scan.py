@@ -39,7 +39,8 @@ class ScanPoints:
 class ScanBatch:
     """Several scans' points in one array: scan i's points (body-yaw frame, m) are rows
     `ends[i]:ends[i + 1]` of `xy` (N, 2) (`ends` (m + 1,) int64 starts at 0) and its lidar
-    centre is `origins[i]` (m, 2), as `ScanPoints` holds them for one scan."""
+    centre is `origins[i]` (m, 2), as `ScanPoints` holds them for one scan (`origins` may be a
+    read-only view of one shared centre)."""
 
     xy: FloatArray
     ends: np.ndarray
