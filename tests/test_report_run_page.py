@@ -220,22 +220,29 @@ def test_run_page_in_chromium_has_errors_over_time_ground_frames_and_a_working_r
 
 
 def test_compiled_templates_kept_in_the_cache_folder_when_it_can_be_written(tmp_path, monkeypatch):
-    # a report process loads the page templates compiled by an earlier one (Jinja2's bytecode
-    # cache, keyed by the template source) and renders the same page; where the cache folder
-    # cannot be made, templates are compiled as before
+    # a report process loads the templates compiled by an earlier one (Jinja2's bytecode cache)
+    # and renders the same page; code compiled under other settings lives in another folder
+    # (Jinja2 would take it for this template's); where the folder cannot be made, templates
+    # are compiled as before
     import jinja2
 
     from slamlab.report import html
 
+    (tmp_path / "t").mkdir()
+    (tmp_path / "t" / "page.html").write_text("<p>{{ name }}</p>\n{% if true %}\n  kept\n{% endif %}\n")
+    loader = jinja2.FileSystemLoader(str(tmp_path / "t"))
+
     def page(cache: jinja2.BytecodeCache | None) -> str:
-        env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(html.TEMPLATE_DIR)), bytecode_cache=cache)
-        return env.from_string("{% extends 'base.html' %}").render(title="t", generated="now", version="v")
+        return html.make_environment(loader, cache).get_template("page.html").render(name="<b>x</b>")
 
     monkeypatch.setenv("SLAMLAB_CACHE_DIR", str(tmp_path / "cache"))
-    first = page(html._compiled_templates())
-    kept = list((tmp_path / "cache" / "templates").glob("__jinja2_*.cache"))
+    first = page(html.compiled_templates())
+    kept = list((tmp_path / "cache" / "templates").glob("*/__jinja2_*.cache"))
     assert len(kept) == 1 and kept[0].stat().st_size > 0
-    assert page(html._compiled_templates()) == first == page(None)
+    assert page(html.compiled_templates()) == first == page(None)
+    assert "&lt;b&gt;" in first and "{%" not in first and "\n\n" not in first  # escaped, blocks trimmed
+    monkeypatch.setattr(html, "_BLOCKS", {"trim_blocks": False, "lstrip_blocks": False})
+    assert html.compiled_templates().directory != str(kept[0].parent)
     (tmp_path / "a_file").write_text("")
     monkeypatch.setenv("SLAMLAB_CACHE_DIR", str(tmp_path / "a_file"))
-    assert html._compiled_templates() is None
+    assert html.compiled_templates() is None

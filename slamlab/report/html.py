@@ -4,6 +4,7 @@ and the re-run command of a run."""
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
 import os
 import shlex
@@ -19,33 +20,57 @@ from slamlab.paths import cache_dir
 TEMPLATE_DIR = Path(__file__).resolve().parent / "templates"
 
 
+# Settings the compiled templates depend on: they also name the folder of the compiled ones
+_AUTOESCAPE = (("html",), True)  # escape .html templates (and strings): run names, errors, config values are user text
+_BLOCKS = {"trim_blocks": True, "lstrip_blocks": True}
+
+
+def make_environment(loader: jinja2.BaseLoader, bytecode_cache: jinja2.BytecodeCache | None) -> jinja2.Environment:
+    """A Jinja2 environment with slamlab's settings (autoescape on; StrictUndefined, so a typo
+    in a template fails the tests, not silently)."""
+    return jinja2.Environment(
+        loader=loader,
+        bytecode_cache=bytecode_cache,
+        autoescape=jinja2.select_autoescape(list(_AUTOESCAPE[0]), default=_AUTOESCAPE[1]),
+        undefined=jinja2.StrictUndefined,
+        **_BLOCKS,
+    )
+
+
 @functools.cache
 def environment() -> jinja2.Environment:
-    """Jinja2 with autoescape on: run names, errors and config values are user text. One per
-    process: it keeps the compiled templates, so a sweep's run pages compile them once."""
-    env = jinja2.Environment(
-        loader=jinja2.FileSystemLoader(str(TEMPLATE_DIR)),
-        bytecode_cache=_compiled_templates(),
-        autoescape=jinja2.select_autoescape(["html"], default=True),
-        trim_blocks=True,
-        lstrip_blocks=True,
-        undefined=jinja2.StrictUndefined,  # a typo in a template fails the tests, not silently
-    )
+    """The reports' environment. One per process: it keeps the compiled templates, so a
+    sweep's run pages compile them once; across processes `compiled_templates` keeps them."""
+    env = make_environment(jinja2.FileSystemLoader(str(TEMPLATE_DIR)), compiled_templates())
     env.filters["num"] = fmt_number
     return env
 
 
-def _compiled_templates() -> jinja2.BytecodeCache | None:
-    """Jinja2's cache of compiled templates, in the cache folder (`paths.cache_dir()`): keyed
-    by each template's source and written atomically by Jinja2, so a report process skips
+class _TemplateCache(jinja2.FileSystemBytecodeCache):
+    """Jinja2's folder of compiled templates; a write that fails (a full disk) leaves the
+    template uncached and the page rendered."""
+
+    def dump_bytecode(self, bucket: jinja2.bccache.Bucket) -> None:
+        try:
+            super().dump_bytecode(bucket)
+        except OSError:
+            pass
+
+
+def compiled_templates() -> jinja2.BytecodeCache | None:
+    """Jinja2's cache of compiled templates under the cache folder (`paths.cache_dir()`), in
+    a subfolder named for Jinja2's version and the settings above: Jinja2 finds a template's
+    compiled code by its name and checks only its source, so code compiled under other
+    settings must live elsewhere. Written atomically by Jinja2. A report process then skips
     compiling the page templates (~0.04 s of the ~1.7 s of CPU a one-scan run takes). None
-    where that folder cannot be written: the templates are then compiled as before."""
-    folder = cache_dir() / "templates"
+    where the folder cannot be written: the templates are compiled as before."""
+    key = hashlib.sha1(repr((jinja2.__version__, _AUTOESCAPE, sorted(_BLOCKS.items()))).encode()).hexdigest()[:12]
+    folder = cache_dir() / "templates" / key
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError:
         return None
-    return jinja2.FileSystemBytecodeCache(str(folder)) if os.access(folder, os.W_OK) else None
+    return _TemplateCache(str(folder)) if os.access(folder, os.W_OK) else None
 
 
 def render(template: str, **context: Any) -> str:
