@@ -23,7 +23,6 @@ matplotlib.use("Agg")  # reports are built headless (callbacks, CI); never open 
 
 import numpy as np  # noqa: E402
 from matplotlib import colormaps  # noqa: E402
-from matplotlib.colors import Colormap  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from slamlab.io.png import grey_rgba  # noqa: E402
@@ -57,13 +56,8 @@ def subplots(nrows: int = 1, ncols: int = 1, figsize: tuple[float, float] | None
     return fig, fig.subplots(nrows, ncols, **kw)
 
 
-def cmap(name: str) -> Colormap:
-    """A named matplotlib colormap (`pyplot.get_cmap` without pyplot)."""
-    return colormaps[name]
-
-
 def fig_to_data_uri(fig: Figure, dpi: int = DPI, fmt: str = "png") -> str:
-    """Render and close a figure; return a base64 data URI for an <img src>. PNG for plots;
+    """Render a figure; return a base64 data URI for an <img src>. PNG for plots;
     `fmt="jpeg"` for figures made of photos (camera frames), where PNG would be 5x larger."""
     buf = io.BytesIO()
     fig.savefig(buf, format=fmt, dpi=dpi, bbox_inches="tight", **({"pil_kwargs": {"quality": 85}} if fmt == "jpeg" else {}))
@@ -307,7 +301,7 @@ def trajectories_overlay(
         ax.plot(groundtruth.xy[:, 0], groundtruth.xy[:, 1], color="black", lw=2.2, alpha=0.6, label="ground truth")
     if odometry is not None:
         ax.plot(odometry.xy[:, 0], odometry.xy[:, 1], color="#d62728", lw=1.0, ls="--", label="odometry")
-    colours = cmap("tab10" if len(runs) <= 10 else "tab20")
+    colours = colormaps["tab10" if len(runs) <= 10 else "tab20"]
     for i, (label, tr) in enumerate(runs):
         ax.plot(tr.xy[:, 0], tr.xy[:, 1], lw=1.0, color=colours(i % colours.N), label=label)
     ax.set_xlabel("x (m)")
@@ -320,7 +314,7 @@ def trajectories_overlay(
 def neff_overlay(curves: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str) -> str:
     """N_eff (or N_eff / N) curves of several runs on one axis."""
     fig, ax = subplots(figsize=(10.0, 3.8))
-    colours = cmap("tab10" if len(curves) <= 10 else "tab20")
+    colours = colormaps["tab10" if len(curves) <= 10 else "tab20"]
     for i, (label, t, y) in enumerate(curves):
         ax.plot(t, y, lw=0.8, color=colours(i % colours.N), label=label)
     ax.set_xlabel("time since first step (s)")
@@ -348,7 +342,7 @@ def metric_vs_param(param: str, panels: Sequence[tuple[str, Sequence[Series]]], 
     categorical (e.g. resampler names) `categorical` gives the tick labels for x = 0..k-1."""
     n = len(panels)
     fig, axes = subplots(1, n, figsize=(4.6 * n, 3.4), squeeze=False)
-    colours = cmap("tab10")
+    colours = colormaps["tab10"]
     for ax, (metric_label, series) in zip(axes.flat, panels):
         for i, s in enumerate(series):
             c = colours(i % 10)

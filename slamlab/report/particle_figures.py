@@ -11,11 +11,12 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from matplotlib import colormaps
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
 from slamlab.io.table import Table
-from slamlab.report.figures import KIND_STYLE, cmap, draw_map, prepare_map, step_times, subplots
+from slamlab.report.figures import KIND_STYLE, draw_map, prepare_map, step_times, subplots
 from slamlab.report.rundir import FirstScan, LogOddsMap, ParticleRecord, Trajectory
 
 PARTICLE_COLOUR = "#1f77b4"
@@ -107,7 +108,7 @@ def weights_figure(rec: ParticleRecord, first_steps: int = 100) -> Figure:
     k, n = rec.weights.shape
     windows = [(0, k)] + ([(0, first_steps)] if k > first_steps else [])
     fig, axes = subplots(len(windows), 1, figsize=(9.0, 3.2 * len(windows)), squeeze=False)
-    colours = cmap("tab10")
+    colours = colormaps["tab10"]
     for ax, (a, b) in zip(axes[:, 0], windows):
         steps = np.arange(a, b)
         ax.stackplot(steps, rec.weights[a:b].T, colors=[colours(i % 10) for i in range(n)],

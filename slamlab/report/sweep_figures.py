@@ -17,11 +17,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from matplotlib import colormaps
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from PIL import Image, ImageDraw
 
-from slamlab.report.figures import DPI, Series, cmap, prepare_map, subplots
+from slamlab.report.figures import DPI, Series, prepare_map, subplots
 from slamlab.report.rundir import LogOddsMap, Trajectory
 
 PANELS_PER_ROW = 3
@@ -30,7 +31,7 @@ MIN_MAP_PX = 420  # a small map is enlarged by whole pixels up to this longest s
 
 def _colour(i: int, n: int = 10):
     """The i-th of n distinct colours (tab10, tab20 beyond ten)."""
-    return cmap("tab10")(i % 10) if n <= 10 else cmap("tab20")(i % 20)
+    return colormaps["tab10"](i % 10) if n <= 10 else colormaps["tab20"](i % 20)
 
 
 def _png_uri(data: bytes) -> str:
