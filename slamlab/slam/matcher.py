@@ -371,13 +371,20 @@ class GridMatcher(Matcher):
         return self._finish(poses, best, scores)
 
 
-def has_close_neighbour(xy: FloatArray, max_gap_m: float) -> np.ndarray:
-    """(M,) bool: points with a scan neighbour (the point before or after) within `max_gap_m`."""
+def has_close_neighbour(xy: FloatArray, max_gap_m: float, ends: np.ndarray | None = None) -> np.ndarray:
+    """(M,) bool: points with a scan neighbour (the point before or after) within `max_gap_m`.
+    With `ends` (a `ScanBatch`'s: several scans' points in one array) only points of one scan
+    are neighbours."""
     near = np.zeros(len(xy), dtype=bool)
     if len(xy) >= 2:
-        gap = np.hypot(*np.diff(xy, axis=0).T)  # gap[k]: between point k and k + 1 (m)
-        near[:-1] |= gap <= max_gap_m
-        near[1:] |= gap <= max_gap_m
+        close = np.hypot(*np.diff(xy, axis=0).T) <= max_gap_m  # close[k]: points k and k + 1 (m)
+        if ends is not None:
+            # no neighbours across two scans (ends at 0 or M: empty scans at the batch's edges,
+            # where no gap lies between two scans)
+            inner = ends[1:-1]
+            close[inner[(inner > 0) & (inner < len(xy))] - 1] = False
+        near[:-1] |= close
+        near[1:] |= close
     return near
 
 
@@ -427,15 +434,7 @@ def _picked_rows(scans: ScanBatch, max_gap_m: float) -> tuple[np.ndarray, np.nda
     if not max_gap_m > 0:
         pick = np.ones(len(scans.xy), dtype=bool)
     else:
-        near = np.zeros(len(scans.xy), dtype=bool)
-        if len(scans.xy) >= 2:
-            close = np.hypot(*np.diff(scans.xy, axis=0).T) <= max_gap_m  # as has_close_neighbour
-            # a scan's last point and the next scan's first are no neighbours (ends at 0 or N:
-            # empty scans at the batch's edges, where no gap lies between two scans)
-            inner = scans.ends[1:-1]
-            close[inner[(inner > 0) & (inner < len(scans.xy))] - 1] = False
-            near[:-1] |= close
-            near[1:] |= close
+        near = has_close_neighbour(scans.xy, max_gap_m, scans.ends)
         scan_has = np.diff(_running_count(near)[scans.ends]) > 0
         pick = near | ~np.repeat(scan_has, scans.counts)
     n_picked = _running_count(pick)

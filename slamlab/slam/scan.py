@@ -87,8 +87,7 @@ def scan_to_points(
 
     `body_height_m` None means a planar robot (CARMEN): no ground filtering, heights ignored.
     """
-    r = frame.ranges.astype(np.float64)
-    keep = frame.valid & np.isfinite(r) & (r >= min_range_m) & (r <= max_range_m)
+    r, keep = _used_beams(frame.ranges, frame.valid, min_range_m, max_range_m)
     r = r[keep]
     cos, sin = _beam_trig(frame.angles)
     T = _frame_transform(frame, body_height_m)
@@ -135,12 +134,12 @@ def scans_to_points(
             mounts[key] = len(T)
             T.append(_frame_transform(f, None))
         which[i] = mounts[key]
-    offset = np.array([t[:2, 3] for t in T])
-    if not all(np.array_equal(t[:3, :2], _UNROTATED) for t in T) or np.any((offset == 0) & np.signbit(offset)):
+    offsets = [_unrotated_offset(t) for t in T]
+    if any(o is None for o in offsets):
         return one_by_one()
+    offset = np.array(offsets)
     origins = [t[:2, 3].copy() for t in T]
-    r = np.concatenate([f.ranges for f in frames]).astype(np.float64)
-    keep = np.concatenate([f.valid for f in frames]) & np.isfinite(r) & (r >= min_range_m) & (r <= max_range_m)
+    r, keep = _used_beams(np.concatenate([f.ranges for f in frames]), np.concatenate([f.valid for f in frames]), min_range_m, max_range_m)
     frame_of = np.repeat(np.arange(len(frames)), [len(f.ranges) for f in frames])[keep]
     r = r[keep]
     if np.any(r == 0):
@@ -158,6 +157,22 @@ def scans_to_points(
 
 
 _UNROTATED = np.eye(3)[:, :2]  # x and y columns of an unrotated transform's rotation
+
+
+def _used_beams(ranges: np.ndarray, valid: np.ndarray, min_range_m: float, max_range_m: float) -> tuple[FloatArray, np.ndarray]:
+    """The ranges as float64 (m) and which beams a run uses: valid, finite and within the limits."""
+    r = ranges.astype(np.float64)
+    return r, valid & np.isfinite(r) & (r >= min_range_m) & (r <= max_range_m)
+
+
+def _unrotated_offset(T: FloatArray) -> FloatArray | None:
+    """The lidar's x / y offset (m) in the body-yaw frame when its transform `T` does not
+    rotate and neither offset is -0.0: then r cos + x, r sin + y are `scan_to_points`' bits
+    (see `scans_to_points`); None otherwise."""
+    offset = T[:2, 3]
+    if not np.array_equal(T[:3, :2], _UNROTATED) or np.any((offset == 0) & np.signbit(offset)):
+        return None
+    return offset
 
 
 def project_scans(
@@ -186,11 +201,10 @@ def _rows_to_points(rows: ScanRows, min_range_m: float, max_range_m: float) -> S
     """`project_scans` of `rows` (a planar log, no body height), or None where the mount is
     rotated, has a -0.0 offset or a kept beam has zero length (`scans_to_points`' fallbacks)."""
     T = _lidar_in_body_yaw(0.0, 0.0, 0.0, np.asarray(rows.lidar_to_body, dtype=np.float64).tobytes())
-    offset = T[:2, 3]
-    if not np.array_equal(T[:3, :2], _UNROTATED) or np.any((offset == 0) & np.signbit(offset)):
+    offset = _unrotated_offset(T)
+    if offset is None:
         return None
-    r = rows.ranges.astype(np.float64)
-    keep = rows.valid & np.isfinite(r) & (r >= min_range_m) & (r <= max_range_m)
+    r, keep = _used_beams(rows.ranges, rows.valid, min_range_m, max_range_m)
     r = r[keep]
     if np.any(r == 0):
         return None
