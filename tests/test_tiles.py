@@ -308,7 +308,7 @@ def test_coarse_sums_by_whole_cell_shifts_equal_scoring_every_offset_up_to_the_m
             across = (c0 & 31) + nx > 31
             assert (inside & across).any() and (inside & ~across).any()
             for k, (dx, dy, dyaw) in enumerate(offsets):
-                want = tiled_score_field(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px + dx, py + dy, pt + dyaw, pts, np.empty((4, len(pts))))
+                want = tiled_score_field(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px + dx, py + dy, pt + dyaw, np.ascontiguousarray(pts.T), np.empty((4, len(pts))))
                 got = sums[shifts[k, 2], shifts[k, 0] - r_lo, shifts[k, 1] - c_lo]
                 assert got == pytest.approx(want, rel=1e-12, abs=1e-12), (field, pose, k)
 
@@ -343,10 +343,12 @@ def test_the_two_pass_field_score_is_the_point_by_point_sum_to_the_bit():
             want += _field_at(maps.pool_f, lut, tab, H, W, u, v)
             read += 0 <= u < W - 1 and 0 <= v < H - 1
         assert 0 < read < len(pts)  # both the map and off it
-        got = tiled_score_field(maps.pool_f, lut, tab, maps.origin[0], maps.origin[1], inv, x, y, th, pts, work)
+        got = tiled_score_field(maps.pool_f, lut, tab, maps.origin[0], maps.origin[1], inv, x, y, th, np.ascontiguousarray(pts.T), work)
         assert got == want and got > 0
     with pytest.raises(ValueError, match="work"):
-        tiled_score_field(maps.pool_f, lut, tab, maps.origin[0], maps.origin[1], inv, x, y, th, pts, work[:, : len(pts) - 1])
+        tiled_score_field(maps.pool_f, lut, tab, maps.origin[0], maps.origin[1], inv, x, y, th, np.ascontiguousarray(pts.T), work[:, : len(pts) - 1])
+    with pytest.raises(ValueError, match="pts_t"):  # points as (M, 2) rows, not the two rows x and y
+        tiled_score_field(maps.pool_f, lut, tab, maps.origin[0], maps.origin[1], inv, x, y, th, pts, work)
 
 
 def test_reference_counts_after_inserts_equal_a_full_recount():
