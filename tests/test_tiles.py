@@ -296,7 +296,7 @@ def test_coarse_sums_by_whole_cell_shifts_equal_scoring_every_offset_up_to_the_m
         for pose in ([0.1, -0.2, 0.05], [half - 0.1, 0.0, 0.0]):  # centred; at the table's edge
             px, py = (float(v) for v in maps.origin + half + np.array(pose[:2]))
             pt = pose[2]
-            sums = coarse_scores_by_cells(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px, py, pt, pts, shifts, yaws)
+            sums = coarse_scores_by_cells(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px, py, pt, np.ascontiguousarray(pts.T), shifts, yaws)
             r_lo, c_lo = shifts[:, 0].min(), shifts[:, 1].min()
             # both of the kernel's row reads are checked: on-map windows within one tile column and across two
             u = (px + np.cos(pt) * pts[:, 0] - np.sin(pt) * pts[:, 1] - maps.origin[0]) / RES - 0.5
