@@ -57,23 +57,25 @@ def test_a_run_with_its_report_still_leaves_pandas_out(tmp_path, sim_cache):
 
 
 @pytest.mark.slow
-def test_the_cli_keeps_numbas_blas_probe_from_loading_scipy_and_kernels_still_get_blas():
+def test_the_cli_keeps_numbas_probes_from_loading_scipy_and_cffi_and_both_still_work():
     # numba's first kernel load imports scipy.linalg only to ask whether BLAS exists (0.2 s,
-    # 13 MB); the CLI hides that one module while numba asks. A slamlab kernel then runs
-    # without SciPy, and a kernel that needs BLAS still gets it when it compiles.
+    # 13 MB) and builds a cffi.FFI() only to support cffi functions in kernels (0.035 s); the
+    # CLI hides those two modules while numba asks. A slamlab kernel then runs without SciPy
+    # or cffi, a kernel that needs BLAS still gets it when it compiles, and cffi still imports.
     code = """
 import sys
 import numpy as np
 import numba
-from slamlab.cli.app import _skip_numba_blas_probe
+from slamlab.cli.app import _skip_numba_probes
 from slamlab.slam.raycast import raycast_update
 
-_skip_numba_blas_probe()
+_skip_numba_probes()
 lo = np.zeros((8, 8), np.float32)
 flip = np.array([8, -1, 8, -1], np.int64)
 raycast_update(lo, 1, 1, np.array([1], np.int64), np.array([6], np.int64), 0.9, -0.4, -5.0, 5.0, 0.0, flip)
 print("row:", *lo[1, :7].round(2))
 print("scipy after a slamlab kernel:", "scipy.linalg" in sys.modules)
+print("cffi after a slamlab kernel:", "cffi" in sys.modules)
 
 
 @numba.njit
@@ -84,9 +86,13 @@ def solve(a, b):
 a = np.array([[2.0, 1.0], [1.0, 3.0]])
 b = np.array([1.0, 2.0])
 print("blas kernel right:", bool(np.allclose(solve(a, b), np.linalg.solve(a, b) + a @ b)))
+import cffi  # installed with the dev extras (Ray's google-auth brings it): still usable
+
+print("cffi usable:", cffi.FFI().sizeof("int") == 4)
 """
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr[-2000:]
     lines = out.stdout.splitlines()
     assert lines[0] == "row: 0.0 -0.4 -0.4 -0.4 -0.4 -0.4 0.9"  # the beam's free cells, then its end
-    assert lines[1:] == ["scipy after a slamlab kernel: False", "blas kernel right: True"]
+    assert lines[1:] == ["scipy after a slamlab kernel: False", "cffi after a slamlab kernel: False",
+                         "blas kernel right: True", "cffi usable: True"]

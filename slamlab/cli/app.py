@@ -8,6 +8,7 @@ Ctrl-C prints one line (`interrupted at scan K/N; partial results in DIR`) and e
 from __future__ import annotations
 
 import gc
+import importlib
 import logging
 import sys
 from collections.abc import Callable
@@ -67,26 +68,32 @@ def _limit_threads_for_parallel_jobs() -> None:
         pass
 
 
-def _skip_numba_blas_probe() -> None:
-    """numba's first kernel load asks once whether SciPy's BLAS exists by importing
-    scipy.linalg: 0.2-0.25 s CPU and 13 MB of a one-scan Intel run, which needs no SciPy
-    otherwise. The answer only picks how np.correlate / np.convolve compile inside a kernel
-    (BLAS's dot or numba's own loop); slamlab's kernels call neither, and any other linear
-    algebra in a kernel still imports SciPy's BLAS when that kernel compiles. So the probe
-    runs here, once per process, with that one module hidden: it finds no BLAS."""
-    blas = "scipy.linalg.cython_blas"
-    if "numba.np.arraymath" in sys.modules or blas in sys.modules:
-        return  # probed already, or SciPy's BLAS is loaded and the probe costs nothing
-    sys.modules[blas] = None  # type: ignore[assignment]  (an import of it raises ImportError)
-    try:
-        import numba.np.arraymath  # noqa: F401  (the module whose import probes)
-    finally:
-        del sys.modules[blas]
+def _skip_numba_probes() -> None:
+    """numba's first kernel load probes for two optional libraries that slamlab's kernels
+    never use, at a cost paid by every run:
+    - whether SciPy's BLAS exists, by importing scipy.linalg (0.2-0.25 s CPU and 13 MB of a
+      one-scan Intel run, which needs no SciPy otherwise). The answer only picks how
+      np.correlate / np.convolve compile inside a kernel (BLAS's dot or numba's own loop);
+      slamlab's kernels call neither, and any other linear algebra in a kernel still imports
+      SciPy's BLAS when that kernel compiles.
+    - whether cffi exists (installed here for google-auth, which Ray brings), by building a
+      `cffi.FFI()`, which imports cffi's C parser: ~0.07 s CPU. It only lets kernels call
+      cffi functions; slamlab's call none.
+    So each probe runs here, once per process, with its one module hidden: it finds nothing.
+    The modules stay importable for everything else afterwards."""
+    for probe, hidden in (("numba.np.arraymath", "scipy.linalg.cython_blas"), ("numba.core.typing.cffi_utils", "cffi")):
+        if probe in sys.modules or hidden in sys.modules:
+            continue  # probed already, or the library is loaded and the probe costs nothing
+        sys.modules[hidden] = None  # type: ignore[assignment]  (an import of it raises ImportError)
+        try:
+            importlib.import_module(probe)  # the module whose import probes
+        finally:
+            del sys.modules[hidden]
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def _hydra_main(cfg: DictConfig) -> None:
-    _skip_numba_blas_probe()
+    _skip_numba_probes()
     hc = HydraConfig.get()
     multirun = hc.mode == RunMode.MULTIRUN
     if multirun and "BasicLauncher" not in str(hc.launcher.get("_target_", "")):
