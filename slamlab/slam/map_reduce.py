@@ -102,16 +102,18 @@ def lowest_value(dtype: np.dtype) -> np.generic:
 @numba.njit(cache=True, parallel=True)
 def tiled_block_max(tab, pool, tile, r0, r1, c0, c1, k, lowest):
     """`block_max_1pass` of the table's cells [r0, r1) x [c0, c1) (as a dense image of the
-    table, empty tiles reading 0), without gathering them: each written tile's cells go
-    straight to their blocks, and an empty tile adds its zeros to the blocks it overlaps.
-    Rows of blocks run in parallel (each is one thread's alone; a max is order-free, so
-    the result does not depend on the thread count). `lowest`: the pool dtype's least value
-    (`lowest_value`), where each block's max starts."""
+    table, empty tiles reading 0), without gathering them. Per row of blocks, the k cell
+    rows are first folded into one row of maxima (`line`: tile runs of each cell row, a loop
+    the compiler vectorises; an empty tile's run takes 0), then each block's k columns of it
+    are reduced once (a block is k x k cells: k times fewer short loops than reducing each
+    cell row block by block). Rows of blocks run in parallel (each is one thread's alone; a
+    max is order-free, so the result does not depend on the thread count). `lowest`: the pool
+    dtype's least value (`lowest_value`), where each max starts."""
     h = (r1 - r0 + k - 1) // k
     w = (c1 - c0 + k - 1) // k
     out = np.empty((h, w), dtype=pool.dtype)
     for R in numba.prange(h):
-        out[R, :] = lowest  # every block holds a cell of the box, so each ends as a real max
+        line = np.full(c1 - c0, lowest, dtype=pool.dtype)  # every cell of it gets a real value
         for r in range(r0 + R * k, min(r0 + (R + 1) * k, r1)):
             tr = r // tile
             i = r - tr * tile
@@ -119,25 +121,19 @@ def tiled_block_max(tab, pool, tile, r0, r1, c0, c1, k, lowest):
                 ca = max(c0, tc * tile)
                 cb = min(c1, (tc + 1) * tile)
                 t = tab[tr, tc]
+                dst = line[ca - c0:cb - c0]
                 if t == 0:
-                    for C in range((ca - c0) // k, (cb - 1 - c0) // k + 1):
-                        if out[R, C] < 0:
-                            out[R, C] = 0
-                    continue
-                # the tile row's cells block by block: a plain max loop per block (no
-                # division or branch per cell)
-                row = pool[t, i]
-                base = tc * tile
-                C = (ca - c0) // k
-                c = ca
-                while c < cb:
-                    e = min(cb, c0 + (C + 1) * k)
-                    m = out[R, C]
-                    for q in range(c - base, e - base):
-                        m = max(m, row[q])
-                    out[R, C] = m
-                    c = e
-                    C += 1
+                    for q in range(cb - ca):
+                        dst[q] = max(dst[q], 0)
+                else:
+                    src = pool[t, i, ca - tc * tile:cb - tc * tile]
+                    for q in range(cb - ca):
+                        dst[q] = max(dst[q], src[q])
+        for C in range(w):
+            m = lowest
+            for q in range(C * k, min((C + 1) * k, c1 - c0)):
+                m = max(m, line[q])
+            out[R, C] = m
     # blocks reaching past the box are padded with 0, as block_max_1pass
     if (r1 - r0) % k:
         for C in range(w):
