@@ -417,6 +417,25 @@ def test_bad_relations(tmp_path, text, expected):
         load_relations(write(tmp_path / "bad.relations", text))
 
 
+def test_relations_read_in_one_pass_equal_the_line_by_line_read(tmp_path):
+    # a well-formed file is converted in one NumPy call; files with comments, or any error,
+    # go line by line: both must give the same values and line numbers (blank lines and
+    # comments skipped, numbers as Python's float reads them)
+    from slamlab.datasets.relations import _parse_line_by_line, _read_relations
+
+    rng = np.random.default_rng(3)
+    rows = [" ".join(repr(float(v)) for v in rng.normal(0, 100, 8)) for _ in range(50)] + ["1e-3 2E+2 -0 .5 5. 0 0 -1.25e-7"]
+    text = "\n".join(rows[:20]) + "\n\n  \n" + "\n".join(rows[20:]) + "\n"
+    for body in (text, "# a comment first\n" + text):
+        path = write(tmp_path / "ok.relations", body)
+        got, lines = _read_relations(path)
+        want, want_lines = _parse_line_by_line(path, body)
+        assert lines == want_lines and len(lines) == 51 and lines[20] == (23 if body is text else 24)
+        assert np.array_equal(got.t1, want[:, 0]) and np.array_equal(got.t2, want[:, 1])
+        assert np.array_equal(got.rel, want[:, [2, 3, 7]])
+        assert got.rel[-1].tolist() == [0.0, 0.5, -1.25e-7] and np.signbit(got.rel[-1, 0])  # "-0" stays -0.0
+
+
 def test_missing_relations_file_given_explicitly(tmp_path):
     write(tmp_path / "small.clf", SMALL_LOG)
     with pytest.raises(DataError, match=r"nowhere\.relations: file not found"):
