@@ -67,7 +67,10 @@ def known_bounds(data, eps):
 def tiled_known_bounds(tab, pool, tile, eps):
     """`known_bounds` of the map a particle's tile table `tab` (TH, TW) of `pool` (cap, tile,
     tile) tiles describes, in the table's cells, reading only its written tiles (index 0 is
-    the all-zero empty tile). Rows of tiles run in parallel, each into its own bounds."""
+    the all-zero empty tile). Rows of tiles run in parallel, each into its own bounds. Within
+    a tile, which of its rows and columns hold a known cell is gathered first (one flag per
+    row, one per column: loops over a tile row the compiler vectorises), and the bounds are
+    taken from those."""
     TH, TW = tab.shape
     rows0 = np.full(TH, TH * tile, dtype=np.int64)
     rows1 = np.zeros(TH, dtype=np.int64)
@@ -75,19 +78,36 @@ def tiled_known_bounds(tab, pool, tile, eps):
     cols1 = np.zeros(TH, dtype=np.int64)
     for tr in numba.prange(TH):
         r0, r1, c0, c1 = TH * tile, 0, TW * tile, 0
+        col_known = np.zeros(tile, dtype=np.bool_)
         for tc in range(TW):
             t = tab[tr, tc]
             if t == 0:
                 continue
+            col_known[:] = False
+            first_row = -1
+            last_row = -1
             for i in range(tile):
+                row_known = False
                 for j in range(tile):
-                    if abs(pool[t, i, j]) > eps:
-                        r = tr * tile + i
-                        c = tc * tile + j
-                        r0 = min(r0, r)
-                        r1 = max(r1, r + 1)
-                        c0 = min(c0, c)
-                        c1 = max(c1, c + 1)
+                    known = abs(pool[t, i, j]) > eps
+                    row_known |= known
+                    col_known[j] |= known
+                if row_known:
+                    if first_row < 0:
+                        first_row = i
+                    last_row = i
+            if first_row < 0:
+                continue
+            first_col = 0
+            while not col_known[first_col]:
+                first_col += 1
+            last_col = tile - 1
+            while not col_known[last_col]:
+                last_col -= 1
+            r0 = min(r0, tr * tile + first_row)
+            r1 = max(r1, tr * tile + last_row + 1)
+            c0 = min(c0, tc * tile + first_col)
+            c1 = max(c1, tc * tile + last_col + 1)
         rows0[tr], rows1[tr], cols0[tr], cols1[tr] = r0, r1, c0, c1
     return rows0.min(), rows1.max(), cols0.min(), cols1.max()
 
