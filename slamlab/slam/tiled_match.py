@@ -122,9 +122,9 @@ def _field_at(pool_f, lut, tab, H, W, u, v):
 
 @numba.njit(cache=True)
 def tiled_score_stretches(pool_f, lut, tab, ox, oy, inv_res, x, y, th, pts_t, ext):
-    """`tiled_score_field` (points `pts_t` as two rows, x and y), except that a point with a stretch (`matcher.surface_stretches`:
-    ext[i] = (ux, uy, n_before, n_after, step_before, step_after)) scores the largest field
-    value at samples along its stretch of surface."""
+    """`tiled_score_field` (points `pts_t` as two rows, x and y), except that a point with a
+    stretch (`matcher.surface_stretches`: ext[i] = (ux, uy, n_before, n_after, step_before,
+    step_after)) scores the largest field value at samples along its stretch of surface."""
     H = tab.shape[0] << TILE_SHIFT
     W = tab.shape[1] << TILE_SHIFT
     c = math.cos(th)
