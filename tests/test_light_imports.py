@@ -96,3 +96,33 @@ print("cffi usable:", cffi.FFI().sizeof("int") == 4)
     assert lines[0] == "row: 0.0 -0.4 -0.4 -0.4 -0.4 -0.4 0.9"  # the beam's free cells, then its end
     assert lines[1:] == ["scipy after a slamlab kernel: False", "cffi after a slamlab kernel: False",
                          "blas kernel right: True", "cffi usable: True"]
+
+
+def test_a_numba_without_a_probe_module_still_runs_the_cli(monkeypatch):
+    # another numba version may keep its probes elsewhere: the CLI then skips nothing, raises
+    # nothing, and leaves no hidden module behind (an import of it would fail for good)
+    import importlib
+
+    from slamlab.cli import app
+
+    real = importlib.import_module
+
+    def without_probes(name, *args):
+        if name in ("numba.np.arraymath", "numba.core.typing.cffi_utils"):
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+        return real(name, *args)
+
+    # as in a fresh process: neither probe run, neither library loaded (restored afterwards)
+    for name in ("numba.np.arraymath", "numba.core.typing.cffi_utils", "scipy.linalg.cython_blas", "cffi"):
+        monkeypatch.delitem(sys.modules, name, raising=False)
+    monkeypatch.setattr(app.importlib, "import_module", without_probes)
+    app._skip_numba_probes()
+    assert "scipy.linalg.cython_blas" not in sys.modules and "cffi" not in sys.modules
+
+    def broken(name, *args):  # a probe that fails for another reason is not hidden
+        raise ModuleNotFoundError("No module named 'llvmlite'", name="llvmlite")
+
+    monkeypatch.setattr(app.importlib, "import_module", broken)
+    with pytest.raises(ModuleNotFoundError, match="llvmlite"):
+        app._skip_numba_probes()
+    assert "scipy.linalg.cython_blas" not in sys.modules and "cffi" not in sys.modules
