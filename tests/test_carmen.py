@@ -421,11 +421,13 @@ def test_relations_read_in_one_pass_equal_the_line_by_line_read(tmp_path):
     # a well-formed file is converted in one NumPy call; files with comments, or any error,
     # go line by line: both must give the same values and line numbers (blank lines and
     # comments skipped, numbers as Python's float reads them)
-    from slamlab.datasets.relations import _parse_line_by_line, _read_relations
+    from slamlab.datasets.relations import _parse_line_by_line, _parse_well_formed, _read_relations
 
     rng = np.random.default_rng(3)
     rows = [" ".join(repr(float(v)) for v in rng.normal(0, 100, 8)) for _ in range(50)] + ["1e-3 2E+2 -0 .5 5. 0 0 -1.25e-7"]
     text = "\n".join(rows[:20]) + "\n\n  \n" + "\n".join(rows[20:]) + "\n"
+    assert _parse_well_formed(text)[0] is not None  # the one-pass read is the one compared first
+    assert _parse_well_formed("# a comment first\n" + text)[0] is None
     for body in (text, "# a comment first\n" + text):
         path = write(tmp_path / "ok.relations", body)
         got, lines = _read_relations(path)

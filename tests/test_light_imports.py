@@ -125,4 +125,11 @@ def test_a_numba_without_a_probe_module_still_runs_the_cli(monkeypatch):
     monkeypatch.setattr(app.importlib, "import_module", broken)
     with pytest.raises(ModuleNotFoundError, match="llvmlite"):
         app._skip_numba_probes()
+
+    def without_package(name, *args):  # a numba without the probe's package: passed over too
+        raise ModuleNotFoundError("No module named 'numba.np'", name=name.rsplit(".", 1)[0])
+
+    monkeypatch.setattr(app.importlib, "import_module", without_package)
+    app._skip_numba_probes()
+    assert "scipy.linalg.cython_blas" not in sys.modules and "cffi" not in sys.modules
     assert "scipy.linalg.cython_blas" not in sys.modules and "cffi" not in sys.modules

@@ -311,6 +311,8 @@ def test_coarse_sums_by_whole_cell_shifts_equal_scoring_every_offset_up_to_the_m
                 want = tiled_score_field(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px + dx, py + dy, pt + dyaw, np.ascontiguousarray(pts.T), np.empty((4, len(pts))))
                 got = sums[shifts[k, 2], shifts[k, 0] - r_lo, shifts[k, 1] - c_lo]
                 assert got == pytest.approx(want, rel=1e-12, abs=1e-12), (field, pose, k)
+    with pytest.raises(ValueError, match="pts_t"):  # (M, 2) rows, not the two rows x and y
+        coarse_scores_by_cells(pool, maps.field_lut, maps.table[0], maps.origin[0], maps.origin[1], 1.0 / RES, px, py, pt, pts, shifts, yaws)
 
 
 def test_the_two_pass_field_score_is_the_point_by_point_sum_to_the_bit():

@@ -80,7 +80,8 @@ def _skip_numba_probes() -> None:
       `cffi.FFI()`, which imports cffi's C parser: ~0.07 s CPU. It only lets kernels call
       cffi functions; slamlab's call none.
     So each probe runs here, once per process, with its one module hidden: it finds nothing.
-    The modules stay importable for everything else afterwards."""
+    The modules stay importable for everything else afterwards (`_hydra_main` calls this first,
+    before any thread of the run could import them while they are hidden)."""
     for probe, hidden in (("numba.np.arraymath", "scipy.linalg.cython_blas"), ("numba.core.typing.cffi_utils", "cffi")):
         if probe in sys.modules or hidden in sys.modules:
             continue  # probed already, or the library is loaded and the probe costs nothing
@@ -88,7 +89,7 @@ def _skip_numba_probes() -> None:
         try:
             importlib.import_module(probe)  # the module whose import probes
         except ModuleNotFoundError as exc:
-            if exc.name != probe:
+            if exc.name is None or not (probe == exc.name or probe.startswith(exc.name + ".")):
                 raise
             # another numba version keeps the probe elsewhere: it then runs as numba has it
         finally:

@@ -144,7 +144,8 @@ def tiled_block_max(tab, pool, tile, r0, r1, c0, c1, k, lowest):
                 dst = line[ca - c0:cb - c0]
                 if t == 0:
                     for q in range(cb - ca):
-                        dst[q] = max(dst[q], 0)
+                        if dst[q] < 0:  # as block_max_1pass pads: a -0.0 stays as it is
+                            dst[q] = 0
                 else:
                     src = pool[t, i, ca - tc * tile:cb - tc * tile]
                     for q in range(cb - ca):

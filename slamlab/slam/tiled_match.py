@@ -8,6 +8,11 @@ decoded as `lut[code]`: see `tiles.py`). Particles are
 independent, so the outer loop runs on all cores (`numba.prange`); each particle's result
 depends only on its own inputs, so results do not depend on the number of threads.
 
+Point layouts: the likelihood-field scores take a scan's points as two rows, x and y
+(`pts_t`, 2 x M; `place_points` says why), and `tiled_field_search` transposes each pose's
+(M, 2) points once; hit counting (`tiled_score_hits`) and Gauss-Newton (`gauss_newton`) read
+(M, 2) rows.
+
 The dense kernels in `matcher.py` stay for the shared-map (course) filter, whose trajectories
 must not change bit for bit.
 """
@@ -188,6 +193,8 @@ def coarse_scores_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, pts_t,
     that sum (up to the last bits of the placement: the shift is added in cells, not metres)."""
     H = tab.shape[0] << TILE_SHIFT
     W = tab.shape[1] << TILE_SHIFT
+    if pts_t.shape[0] != 2:  # (M, 2) rows would be read as two garbage points
+        raise ValueError("coarse_scores_by_cells: pts_t must be (2, M)")
     r_lo = shifts[:, 0].min()
     c_lo = shifts[:, 1].min()
     ny = shifts[:, 0].max() - r_lo + 1
@@ -269,15 +276,15 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
     by = py
     bt = pt
     work = np.empty((4, max(coarse_pts.shape[0], fine_pts.shape[0])))  # tiled_score_field's scratch
-    # the scores take the points as two rows, x and y (`place_points`)
-    coarse_t = np.ascontiguousarray(coarse_pts.T)
-    fine_t = np.ascontiguousarray(fine_pts.T)
+    # the field scores take the points as two rows, x and y (`place_points`)
     if offsets.shape[0] > 1 and shifts.shape[0] == offsets.shape[0]:
+        coarse_t = np.ascontiguousarray(coarse_pts.T)
         bk = _coarse_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_t, offsets, shifts, yaws, kxy, kyaw)
         bx += offsets[bk, 0]
         by += offsets[bk, 1]
         bt += offsets[bk, 2]
     elif offsets.shape[0] > 1:
+        coarse_t = np.ascontiguousarray(coarse_pts.T)
         best = -1e300
         bk = 0
         for k in range(offsets.shape[0]):
@@ -291,6 +298,7 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
         bt += offsets[bk, 2]
     if lut_d.shape[0] > 0:  # refine: gauss_newton (steps of at most one coarse step)
         return refine_pose(NO_FIELD, pool_f, tab, lut, lut_d, 0.0, ox, oy, inv_res, px, py, pt, bx, by, bt, fine_pts, kxy, kyaw, w_scale, 2.0 * lin_step, 2.0 * ang_step)
+    fine_t = np.ascontiguousarray(fine_pts.T)
     cur = _score_fine(pool_f, lut, tab, ox, oy, inv_res, bx, by, bt, fine_t, ext, work)
     n_eval = 1
     cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
