@@ -133,3 +133,33 @@ def test_a_numba_without_a_probe_module_still_runs_the_cli(monkeypatch):
     app._skip_numba_probes()
     assert "scipy.linalg.cython_blas" not in sys.modules and "cffi" not in sys.modules
     assert "scipy.linalg.cython_blas" not in sys.modules and "cffi" not in sys.modules
+
+
+@pytest.mark.slow
+def test_report_matplotlib_skips_the_docstring_tables_of_its_import_only():
+    # slamlab.report.mpl imports matplotlib with `kwdoc` (each Artist's property table for its
+    # set() docstring, 0.1-0.2 s CPU) giving nothing, then puts it back: matplotlib's own
+    # classes miss the table, a class made later has it, and drawing is unaffected
+    code = """
+import matplotlib.artist
+from slamlab.report.mpl import Figure, Line2D
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+print("restored:", matplotlib.artist.kwdoc.__module__ == "matplotlib.artist" and matplotlib.artist.kwdoc.__name__ == "kwdoc")
+print("Line2D table:", "antialiased" in (Line2D.set.__doc__ or ""))
+
+
+class Later(Line2D):
+    pass
+
+
+print("later table:", "antialiased" in (Later.set.__doc__ or ""))
+fig = Figure(figsize=(2, 2))
+fig.subplots().plot([0, 1], [0, 1])
+canvas = FigureCanvasAgg(fig)
+canvas.draw()
+print("drawn:", canvas.buffer_rgba().shape)
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.splitlines() == ["restored: True", "Line2D table: False", "later table: True", "drawn: (200, 200, 4)"]

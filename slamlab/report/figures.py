@@ -17,18 +17,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")  # reports are built headless (callbacks, CI); never open a window
-
-import numpy as np  # noqa: E402
-from matplotlib import colormaps  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-
-from slamlab.io.png import grey_rgba  # noqa: E402
-from slamlab.io.table import Table  # noqa: E402
-from slamlab.report.rundir import LogOddsMap, Trajectory  # noqa: E402
-from slamlab.slam.replay import block_max  # noqa: E402
+from slamlab.io.png import grey_rgba
+from slamlab.io.table import Table
+from slamlab.report.mpl import Figure, colormaps  # headless, without docstring tables (mpl.py)
+from slamlab.report.rundir import LogOddsMap, Trajectory
+from slamlab.slam.replay import block_max
 
 DPI = 90
 # Fixed colours per trajectory kind, so every figure reads the same way.

@@ -11,12 +11,10 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from matplotlib import colormaps
-from matplotlib.collections import LineCollection
-from matplotlib.figure import Figure
 
 from slamlab.io.table import Table
 from slamlab.report.figures import KIND_STYLE, draw_map, prepare_map, step_times, subplots
+from slamlab.report.mpl import Figure, LineCollection, colormaps
 from slamlab.report.rundir import FirstScan, LogOddsMap, ParticleRecord, Trajectory
 
 PARTICLE_COLOUR = "#1f77b4"

@@ -17,12 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from matplotlib import colormaps
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
 from PIL import Image, ImageDraw
 
 from slamlab.report.figures import DPI, Series, prepare_map, subplots
+from slamlab.report.mpl import Figure, Line2D, colormaps
 from slamlab.report.rundir import LogOddsMap, Trajectory
 
 PANELS_PER_ROW = 3
