@@ -202,18 +202,21 @@ def _splat(table, p, pool_lo, pool_f, ref, free, rel, used, kernel, r, c, b0, b1
             i0 = ca & TILE_MASK
             k0 = ca - c + R
             n_c = cb - ca
-            raise_needed = False
-            for rr in range(ra, rb):
-                dst = pool_f[t, rr & TILE_MASK, i0:i0 + n_c]
-                src = kernel[rr - r + R, k0:k0 + n_c]
-                for q in range(n_c):
-                    if src[q] > dst[q]:
-                        raise_needed = True
-                if raise_needed:
-                    break
-            if not raise_needed:
-                continue
-            t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, rel, used)
+            if not _owned(ref, t):
+                # a shared tile is copied only when one of its values rises; the particle's
+                # own tiles (the centre's always: its cell just changed) are raised unlooked
+                raise_needed = False
+                for rr in range(ra, rb):
+                    dst = pool_f[t, rr & TILE_MASK, i0:i0 + n_c]
+                    src = kernel[rr - r + R, k0:k0 + n_c]
+                    for q in range(n_c):
+                        if src[q] > dst[q]:
+                            raise_needed = True
+                    if raise_needed:
+                        break
+                if not raise_needed:
+                    continue
+                t = _writable(table, p, tr, tc, pool_lo, pool_f, True, ref, free, rel, used)
             for rr in range(ra, rb):
                 _max_into(pool_f[t, rr & TILE_MASK, i0:i0 + n_c], kernel[rr - r + R, k0:k0 + n_c])
 
