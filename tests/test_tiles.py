@@ -375,6 +375,45 @@ def test_reference_counts_after_inserts_equal_a_full_recount():
     assert maps.tiles_in_use == len(np.unique(maps.table[maps.table != EMPTY]))
 
 
+@pytest.mark.parametrize("sigma_m, radius_m", [(0.0, 0.0), (0.1, 0.3), (0.3, 1.1)])
+def test_the_fresh_tile_bound_covers_every_tile_an_insert_takes(sigma_m, radius_m):
+    """`count_fresh_tiles` bounds the fresh tiles each particle's insert takes (the free list
+    is handed out by these bounds), with no field, the preset's kernel radius (6 cells) and
+    the largest radius the tiles allow (22 cells, the sparsest samples): long beams at every
+    angle from sub-cell poses, just after resampling, when every tile is shared."""
+    from slamlab.slam.tiles import count_fresh_tiles
+
+    rng = np.random.default_rng(11)
+    n = 8
+    maps = TiledMaps(SETTINGS, n, field_sigma_m=sigma_m, field_radius_m=radius_m, initial_tiles=4)
+    assert maps.kernel.shape[0] // 2 == round(radius_m / RES)
+    poses = rng.uniform(-0.5, 0.5, (n, 3))
+    total_taken = 0
+    for _ in range(10):
+        pts, origin = _scan(rng, m=120, max_r=12.0)
+        poses = poses + rng.normal(0, [0.3, 0.3, 0.2], poses.shape)
+        rmax = float(np.sqrt((np.vstack([pts, origin]) ** 2).sum(axis=1)).max())
+        maps.ensure(poses[:, 0].min() - rmax, poses[:, 1].min() - rmax, poses[:, 0].max() + rmax, poses[:, 1].max() + rmax)
+        need = np.zeros(n, dtype=np.int64)
+        marks, listed = maps._marks(n)
+        listed[:] = -1  # the tiles of the beams' samples come first; the rest stays -1
+        count_fresh_tiles(maps.table, maps.ref, np.arange(n, dtype=np.int64), poses, pts, origin, float(maps.origin[0]),
+                          float(maps.origin[1]), 1.0 / maps.res, maps.kernel.shape[0] // 2, need, marks, listed)
+        before = maps.table.copy()
+        maps.insert_scan(poses, pts, origin)
+        assert maps.table.shape == before.shape  # the bound was taken on the table the insert used
+        tw = maps.table.shape[2]
+        for j in range(n):
+            sampled = listed[j][listed[j] >= 0]
+            counted = {(t // tw + a, t % tw + b) for t in sampled.tolist() for a in (-1, 0, 1) for b in (-1, 0, 1)}
+            taken = {tuple(rc) for rc in np.argwhere(maps.table[j] != before[j]).tolist()}  # one entry per fresh tile
+            total_taken += len(taken)
+            assert taken <= counted, sorted(taken - counted)
+            assert len(taken) <= need[j]
+        maps.resample(rng.integers(0, n, n))
+    assert total_taken > 10 * n  # the scans reached unshared space: the check had tiles to check
+
+
 def test_tile_pool_grows_in_place_and_keeps_its_tiles():
     """The pool is a memory map resized in place (no second copy of the tiles while it
     grows); a view still held elsewhere makes it copy instead, and that view stays valid."""
