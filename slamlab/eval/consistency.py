@@ -23,12 +23,13 @@ cent; runs that lost a loop or have no scan matching score clearly lower / highe
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from slamlab.frames import GridImage, Sequence
 from slamlab.geometry import FloatArray
 from slamlab.slam.grid import MapSettings
-from slamlab.slam.raycast import raycast_update
+from slamlab.slam.raycast import line_step
 from slamlab.slam.scan import place, range_limits, scans_to_points
 
 WINDOW = 25  # scored scans per rolling median: the worst stretch of the run
@@ -37,17 +38,43 @@ MIN_HITS = 4  # a cell is a wall of the replay when the sampled scans hit it thi
 CHUNK = 100  # scans placed at once (~18,000 points on Intel: a few MB of temporaries)
 
 
-def _near_wall(log_odds: np.ndarray, threshold: float, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+@numba.njit(cache=True)
+def _near_wall(log_odds, threshold, rows, cols):
     """Whether cell (rows[k], cols[k]) or one of its 8 neighbours (on the map) is occupied:
     looked up at the endpoints only (a dilated copy of a building's map is 10^8 cells)."""
     H, W = log_odds.shape
-    out = np.zeros(len(rows), dtype=bool)
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            r, c = rows + dr, cols + dc
-            ok = (r >= 0) & (r < H) & (c >= 0) & (c < W)
-            out[ok] |= log_odds[r[ok], c[ok]] > threshold
+    out = np.zeros(rows.shape[0], dtype=np.bool_)
+    for k in range(rows.shape[0]):
+        for r in range(max(rows[k] - 1, 0), min(rows[k] + 2, H)):
+            for c in range(max(cols[k] - 1, 0), min(cols[k] + 2, W)):
+                if log_odds[r, c] > threshold:
+                    out[k] = True
     return out
+
+
+@numba.njit(cache=True)
+def _count_passes(passes, s_row, s_col, e_row, e_col, ends):
+    """+1 on every cell each beam walks, its end included: scan j's beams run from cell
+    (s_row[j], s_col[j]) to (e_row[k], e_col[k]) for k in ends[j]:ends[j + 1], along the
+    cells the map's own ray cast walks (`raycast.line_step`). All cells lie in `passes`."""
+    for j in range(s_row.shape[0]):
+        r0 = s_row[j]
+        c0 = s_col[j]
+        for k in range(ends[j], ends[j + 1]):
+            r1 = e_row[k]
+            c1 = e_col[k]
+            dr = abs(r1 - r0)
+            dc = abs(c1 - c0)
+            sr = 1 if r1 > r0 else -1
+            sc = 1 if c1 > c0 else -1
+            err = dc - dr
+            r = r0
+            c = c0
+            major_c = dc >= dr
+            for _ in range(dc if major_c else dr):
+                passes[r, c] += 1
+                r, c, err = line_step(r, c, err, dr, dc, sr, sc, major_c)
+            passes[r1, c1] += 1
 
 
 def consistency_metrics(
@@ -66,8 +93,7 @@ def consistency_metrics(
     n = len(poses)
     pick = np.unique(np.linspace(0, n - 1, min(n, max_scans)).round().astype(np.int64)) if n else np.zeros(0, np.int64)
     H, W = log_odds.data.shape
-    passes = np.zeros((H, W), dtype=np.float32)  # counted by the map's own ray walk
-    no_flips = np.zeros(4, dtype=np.int64)
+    passes = np.zeros((H, W), dtype=np.int32)  # beams through each cell, counted by the map's own ray walk
     inv = 1.0 / log_odds.resolution_m
     ox, oy = log_odds.origin_xy
     min_r, max_r = range_limits(settings, sequence)
@@ -108,16 +134,15 @@ def consistency_metrics(
         short = sensor[scan_of[far]] + ray[far] * ((length[far] - NEAR_M) / length[far])[:, None]
         e_row, e_col, e_in = cells(short)
         ends = np.searchsorted(scan_of[far][e_in], np.arange(len(chunk) + 1))  # scan j walks ends[j]:ends[j + 1]
-        e_row, e_col = e_row[e_in], e_col[e_in]
-        for j in np.flatnonzero(ends[1:] > ends[:-1]):
-            # +1 on every cell of the shortened beam, its end included (free and hit deltas both 1)
-            raycast_update(passes, int(s_row[j]), int(s_col[j]), e_row[ends[j] : ends[j + 1]], e_col[ends[j] : ends[j + 1]],
-                           1.0, 1.0, 0.0, 3.0e38, 0.5, no_flips)
+        _count_passes(passes, s_row, s_col, e_row[e_in], e_col[e_in], ends)
     on_map = np.concatenate(on_map_parts) if on_map_parts else np.zeros(0, np.int64)
     hit_scan = np.concatenate(hit_scan_parts) if hit_scan_parts else np.zeros(0, np.int64)
     # each scan's hit fraction: its endpoints near a wall over all its endpoints (looked up for
     # every scan at once: per scan, the nine lookups cost a third of this function)
-    near = _near_wall(log_odds.data, settings.occupied_threshold, on_map // W, on_map % W)
+    # the threshold in the map's own type: NumPy compares a float32 map with a Python float in
+    # float32, and so does the kernel then (in float64 a map value equal to float32(0.1) would pass 0.1)
+    threshold = log_odds.data.dtype.type(settings.occupied_threshold)
+    near = _near_wall(log_odds.data, threshold, on_map // W, on_map % W)
     near_count = np.bincount(hit_scan, weights=near, minlength=len(pick))
     frac[n_points > 0] = near_count[n_points > 0] / n_points[n_points > 0]
     cell, hits = np.unique(on_map, return_counts=True)
