@@ -29,7 +29,7 @@ import numpy as np
 from slamlab.frames import GridImage, Sequence
 from slamlab.geometry import FloatArray
 from slamlab.slam.grid import MapSettings
-from slamlab.slam.raycast import line_step
+from slamlab.slam.raycast import line_start, line_step
 from slamlab.slam.scan import place, range_limits, scans_to_points
 
 WINDOW = 25  # scored scans per rolling median: the worst stretch of the run
@@ -61,20 +61,13 @@ def _count_passes(passes, s_row, s_col, e_row, e_col, ends):
         r0 = s_row[j]
         c0 = s_col[j]
         for k in range(ends[j], ends[j + 1]):
-            r1 = e_row[k]
-            c1 = e_col[k]
-            dr = abs(r1 - r0)
-            dc = abs(c1 - c0)
-            sr = 1 if r1 > r0 else -1
-            sc = 1 if c1 > c0 else -1
-            err = dc - dr
+            dr, dc, sr, sc, err, major_c, n = line_start(r0, c0, e_row[k], e_col[k])
             r = r0
             c = c0
-            major_c = dc >= dr
-            for _ in range(dc if major_c else dr):
+            for _ in range(n):
                 passes[r, c] += 1
                 r, c, err = line_step(r, c, err, dr, dc, sr, sc, major_c)
-            passes[r1, c1] += 1
+            passes[e_row[k], e_col[k]] += 1
 
 
 def consistency_metrics(

@@ -34,6 +34,20 @@ def bresenham(r0: int, c0: int, r1: int, c1: int) -> list[tuple[int, int]]:
 
 
 @numba.njit(cache=True, inline="always")
+def line_start(r0, c0, r1, c1):
+    """The kernels' Bresenham walk from cell (r0, c0) toward (r1, c1) (`line_step` takes it
+    on): (dr, dc, sr, sc, err, major_c, n), the beam's deltas |dr|, |dc|, their signs, the
+    error term's start, whether columns are the major axis, and n, the number of cells the
+    walk visits before the end cell."""
+    dr = abs(r1 - r0)
+    dc = abs(c1 - c0)
+    sr = 1 if r1 > r0 else -1
+    sc = 1 if c1 > c0 else -1
+    major_c = dc >= dr
+    return dr, dc, sr, sc, dc - dr, major_c, dc if major_c else dr
+
+
+@numba.njit(cache=True, inline="always")
 def line_step(r, c, err, dr, dc, sr, sc, major_c):
     """One step of the kernels' Bresenham walk from (r, c) (beam deltas |dr|, |dc|, signs sr,
     sc, error term `err`, started at dc - dr): a line takes max(dr, dc) steps, each one along
@@ -76,17 +90,10 @@ def raycast_update(lo, r0, c0, rows, cols, l_occ, l_free, lmin, lmax, thresh, fl
     values are clamped to [lmin, lmax]. Cells whose `lo > thresh` state flips extend the
     int64 box `flip` = [rmin, rmax, cmin, cmax] (in/out). All cells must lie inside `lo`."""
     for k in range(rows.shape[0]):
-        r1 = rows[k]
-        c1 = cols[k]
-        dr = abs(r1 - r0)
-        dc = abs(c1 - c0)
-        sr = 1 if r1 > r0 else -1
-        sc = 1 if c1 > c0 else -1
-        err = dc - dr
+        dr, dc, sr, sc, err, major_c, n = line_start(r0, c0, rows[k], cols[k])
         r = r0
         c = c0
-        major_c = dc >= dr
-        for _ in range(dc if major_c else dr):  # the line's cells without its end
+        for _ in range(n):  # the line's cells without its end
             _add(lo, r, c, l_free, lmin, lmax, thresh, flip)
             r, c, err = line_step(r, c, err, dr, dc, sr, sc, major_c)
     for k in range(rows.shape[0]):

@@ -53,7 +53,7 @@ from slamlab.errors import ConfigError
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
 from slamlab.slam.grid import MapSettings
-from slamlab.slam.raycast import field_radius_cells, gaussian_kernel, line_step
+from slamlab.slam.raycast import field_radius_cells, gaussian_kernel, line_start, line_step
 
 TILE_SHIFT = 5
 TILE = 1 << TILE_SHIFT  # cells per tile side
@@ -116,17 +116,10 @@ def tiled_raycast(table, p, pool_lo, pool_f, has_field, ref, free, rel, used,
     t = EMPTY
     own = False  # tile t is p's alone (writable in place)
     for k in range(rows.shape[0]):
-        r1 = rows[k]
-        c1 = cols[k]
-        dr = abs(r1 - r0)
-        dc = abs(c1 - c0)
-        sr = 1 if r1 > r0 else -1
-        sc = 1 if c1 > c0 else -1
-        err = dc - dr
+        dr, dc, sr, sc, err, major_c, n = line_start(r0, c0, rows[k], cols[k])
         r = r0
         c = c0
-        major_c = dc >= dr
-        for _ in range(dc if major_c else dr):  # the line's cells without its end (`line_step`)
+        for _ in range(n):  # the line's cells without its end (`line_step`)
             tr = r >> TILE_SHIFT
             tc = c >> TILE_SHIFT
             if tr != last_tr or tc != last_tc:
