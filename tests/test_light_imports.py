@@ -132,7 +132,6 @@ def test_a_numba_without_a_probe_module_still_runs_the_cli(monkeypatch):
     monkeypatch.setattr(app.importlib, "import_module", without_package)
     app._skip_numba_probes()
     assert "scipy.linalg.cython_blas" not in sys.modules and "cffi" not in sys.modules
-    assert "scipy.linalg.cython_blas" not in sys.modules and "cffi" not in sys.modules
 
 
 @pytest.mark.slow

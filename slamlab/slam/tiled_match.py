@@ -276,23 +276,19 @@ def _climb(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
     by = py
     bt = pt
     work = np.empty((4, max(coarse_pts.shape[0], fine_pts.shape[0])))  # tiled_score_field's scratch
-    # the field scores take the points as two rows, x and y (`place_points`)
-    if offsets.shape[0] > 1 and shifts.shape[0] == offsets.shape[0]:
-        coarse_t = np.ascontiguousarray(coarse_pts.T)
-        bk = _coarse_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_t, offsets, shifts, yaws, kxy, kyaw)
-        bx += offsets[bk, 0]
-        by += offsets[bk, 1]
-        bt += offsets[bk, 2]
-    elif offsets.shape[0] > 1:
-        coarse_t = np.ascontiguousarray(coarse_pts.T)
-        best = -1e300
-        bk = 0
-        for k in range(offsets.shape[0]):
-            sc = tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, px + offsets[k, 0], py + offsets[k, 1], pt + offsets[k, 2], coarse_t, work)
-            sc -= kxy * (offsets[k, 0] ** 2 + offsets[k, 1] ** 2) + kyaw * offsets[k, 2] ** 2
-            if sc > best:
-                best = sc
-                bk = k
+    if offsets.shape[0] > 1:
+        coarse_t = np.ascontiguousarray(coarse_pts.T)  # the field scores take x and y as two rows (`place_points`)
+        if shifts.shape[0] == offsets.shape[0]:
+            bk = _coarse_by_cells(pool_f, lut, tab, ox, oy, inv_res, px, py, pt, coarse_t, offsets, shifts, yaws, kxy, kyaw)
+        else:
+            best = -1e300
+            bk = 0
+            for k in range(offsets.shape[0]):
+                sc = tiled_score_field(pool_f, lut, tab, ox, oy, inv_res, px + offsets[k, 0], py + offsets[k, 1], pt + offsets[k, 2], coarse_t, work)
+                sc -= kxy * (offsets[k, 0] ** 2 + offsets[k, 1] ** 2) + kyaw * offsets[k, 2] ** 2
+                if sc > best:
+                    best = sc
+                    bk = k
         bx += offsets[bk, 0]
         by += offsets[bk, 1]
         bt += offsets[bk, 2]
