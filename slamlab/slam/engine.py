@@ -40,55 +40,24 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numba
 import numpy as np
 
-from slamlab.errors import ConfigError
-from slamlab.frames import Sequence, scan_odometry, scan_times
+from slamlab.frames import Sequence
 from slamlab.geometry import FloatArray, se2_between, se2_compose, weighted_mean_pose
 from slamlab.io.table import Table
-from slamlab.slam.filters import FilterKind
-from slamlab.slam.grid import MapSettings
-from slamlab.slam.matcher import MatchPoints, Matcher
-from slamlab.slam.motion import MotionModel
 from slamlab.slam.odometry_scale import learn_scales, scaled_start
+from slamlab.slam.plan import BetweenScans, Components, plan_steps
 from slamlab.slam.replay import ReplayRecorder, snapshot_steps
-from slamlab.slam.resample import Resampler
 from slamlab.slam.result import ParticleHistory, SlamResult
 from slamlab.slam.scan import ScanBatch, points_to_world, project_scans, range_limits, scan_to_points
 from slamlab.slam.spread import spread_columns
-from slamlab.slam.steps import fill_between_steps, select_steps
+from slamlab.slam.steps import fill_between_steps
 from slamlab.slam.tiles import decode_image
-from slamlab.slam.weighting import Weighting, effective_sample_size
+from slamlab.slam.weighting import effective_sample_size
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True, slots=True)
-class Components:
-    """The checked pieces of one run: the run-level knobs (`slamlab.config.run`; units in the
-    names) and the component objects built from the config groups."""
-
-    particles: int
-    seed: int
-    mode: str
-    every: int
-    min_distance_m: float
-    min_angle_rad: float
-    skip_static_start: bool
-    max_scans: int | None
-    max_steps: int | None
-    between: str
-    motion: MotionModel
-    weighting: Weighting
-    resampler: Resampler
-    matcher: Matcher
-    map: MapSettings
-    filter: FilterKind
-    record_particles: bool
-    record_replay: bool
 
 
 def ancestral_path(hist_poses: FloatArray, hist_parent: np.ndarray, last: int) -> FloatArray:
@@ -104,48 +73,6 @@ def ancestral_path(hist_poses: FloatArray, hist_parent: np.ndarray, last: int) -
         path[k] = hist_poses[k, j]
         j = int(hist_parent[k, j])
     return path
-
-
-class _BetweenScans:
-    """The scans between filter steps (`steps.between=match`), projected and prepared for the
-    matcher `CHUNK_STEPS` steps (at most `CHUNK_SCANS` scans) at a time: one pass of NumPy
-    calls for a chunk instead of a few dozen per step (Intel has 1,364 steps and 12,125 scans
-    between them). Each scan's points do not depend on the scans prepared with it (tests:
-    `test_prepared_scans_pick_what_points_picks_scan_by_scan`, `project_scans`' in
-    test_carmen). Steps are asked for in order, each once (`of_step`)."""
-
-    CHUNK_STEPS = 16
-    CHUNK_SCANS = 2000  # at most ~0.5 MB of Intel's points however far apart the steps lie
-
-    def __init__(self, step_scans: np.ndarray, n_scans: int, project: Callable[[int, int], ScanBatch],
-                 prepare: Callable[[ScanBatch], ScanBatch | MatchPoints]) -> None:
-        """`project(a, b)`: scans a..b-1's points; `prepare`: those as the matcher takes them."""
-        self._steps = np.asarray(step_scans, dtype=np.int64)
-        self._stop = np.append(self._steps[1:], n_scans)  # step k's scans between: steps[k] + 1 .. stop[k] - 1
-        self._prepare = prepare
-        self._project = project
-        self._last = -1  # the chunk held serves steps up to _last - 1, its scans from _at
-        self._at = 0
-        self._prepared: ScanBatch | MatchPoints = ScanBatch.of([])
-        self.spent_s = 0.0  # wall seconds the last `of_step` spent preparing a chunk (0: none)
-        self.share_s = 0.0  # the held chunk's preparation per step it serves
-
-    def of_step(self, k: int) -> tuple[np.ndarray, ScanBatch | MatchPoints]:
-        """The scans between step k and the next that have points (their indices, scan order)
-        and those scans as `ParticleMaps.prepare_scans` gives them (a scan without points keeps
-        its odometry)."""
-        self.spent_s = 0.0
-        if k >= self._last:
-            t0 = time.perf_counter()
-            self._at = int(self._steps[k]) + 1
-            fits = int(np.searchsorted(self._stop, self._at + self.CHUNK_SCANS, side="right"))
-            self._last = max(k + 1, min(k + self.CHUNK_STEPS, fits, len(self._steps)))
-            self._prepared = self._prepare(self._project(self._at, int(self._stop[self._last - 1])))
-            self.spent_s = time.perf_counter() - t0
-            self.share_s = self.spent_s / (self._last - k)
-        a, b = int(self._steps[k]) + 1, int(self._stop[k])
-        part = self._prepared.scans(a - self._at, b - self._at)
-        return np.arange(a, b, dtype=np.int64)[part.counts > 0], part.nonempty()
 
 
 def run_slam(
@@ -166,22 +93,17 @@ def run_slam(
     # six alternated pairs: faster in five, by 0.6-1.7 s of 8-10 s (slower by 0.3 s in one);
     # ACES and the default sim run within their noise. OpenMP splits the loop in fixed blocks
     # whatever this says. Results do not depend on it.
+    if c.mode == "slam" and c.filter.family == "graph":  # one trajectory, its own loop
+        from slamlab.slam.graph.run import run_graph
+
+        return run_graph(sequence, c, progress)
     with numba.parallel_chunksize(1):
         return _run_filter(sequence, c, progress)
 
 
 def _run_filter(sequence: Sequence, c: Components, progress: Callable[[int, int], None] | None) -> SlamResult:
     """`run_slam`'s work."""
-    scans = sequence.scans if c.max_scans is None else sequence.scans[: c.max_scans]
-    if not scans:
-        raise ConfigError("steps.max_scans", f"sequence {sequence.name!r} has no scans to process")
-    times = scan_times(scans)
-    odom = scan_odometry(scans)
-    step_scans = select_steps(odom, c.every, c.min_distance_m, c.min_angle_rad, c.skip_static_start)
-    if c.max_steps is not None and len(step_scans) > c.max_steps:
-        # the run ends at its last processed scan (max_steps=1: the first scan's map alone)
-        step_scans = step_scans[: c.max_steps]
-        scans, times, odom = scans[: step_scans[-1] + 1], times[: step_scans[-1] + 1], odom[: step_scans[-1] + 1]
+    scans, times, odom, step_scans = plan_steps(sequence, c)
     n_steps = len(step_scans)
     slam = c.mode == "slam"
     n = 1 if c.mode == "odometry" else c.particles
@@ -210,7 +132,7 @@ def _run_filter(sequence: Sequence, c: Components, progress: Callable[[int, int]
     def project(a: int, b: int) -> ScanBatch:
         return project_scans(scans, a, b, sequence.body_height_m, min_r, max_r, ms.ground_threshold_m)
 
-    between_scans = _BetweenScans(step_scans, len(scans), project, lambda batch: maps.prepare_scans(c.matcher, batch))  # used when `between`
+    between_scans = BetweenScans(step_scans, len(scans), project, lambda batch: maps.prepare_scans(c.matcher, batch))  # used when `between`
     t_loop = time.perf_counter()
     for k, si in enumerate(step_scans):
         t0 = time.perf_counter()

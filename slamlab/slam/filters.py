@@ -176,9 +176,12 @@ class PerParticleMaps(ParticleMaps):
 
 
 class FilterKind(ABC):
-    """A `filter/` choice: builds the particles' maps for a run."""
+    """A `filter/` choice. `family` names the loop that runs it: `particles` (the particle
+    filters' loop, `slam.engine`, which asks `maps` for the particles' maps) or `graph`
+    (`slam.graph.run`: submaps and a pose graph, one trajectory)."""
 
     name: str = ""
+    family: str = "particles"
     # the online (causal) pose at each step: "best" = the highest-weight particle, "mean" =
     # the weighted mean of all particles (`geometry.weighted_mean_pose`)
     online: str = "best"
@@ -188,9 +191,10 @@ class FilterKind(ABC):
         `RaoBlackwellFilter`."""
         return 1.0
 
-    @abstractmethod
     def maps(self, settings: MapSettings, n: int, start_xy: tuple[float, float], matcher: Matcher | None) -> ParticleMaps:
-        ...
+        """The particles' maps for a run (`family` particles; also for mode odometry / predict,
+        which the particle loop runs whatever the filter)."""
+        return SharedMap(settings, start_xy, matcher)
 
 
 class SharedMapFilter(FilterKind):

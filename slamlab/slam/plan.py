@@ -1,0 +1,114 @@
+"""What every filter family shares before its own loop: the run's components and which scans
+it processes.
+
+- `Components`: the checked pieces of one run, built once at the application edge
+  (`slamlab.assemble`) from the config groups;
+- `plan_steps`: the scans of the run (`steps.max_scans`), their times and odometry, and the
+  processed steps (`steps.select_steps`, cut at `steps.max_steps`);
+- `BetweenScans`: the scans between two processed steps, projected and prepared a chunk of
+  steps at a time (`steps.between=match`).
+The particle filters' loop (`slam.engine`) and the graph's (`slam.graph.run`) both start here.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from slamlab.errors import ConfigError
+from slamlab.frames import ScanFrame, Sequence, scan_odometry, scan_times
+from slamlab.geometry import FloatArray
+from slamlab.slam.filters import FilterKind
+from slamlab.slam.grid import MapSettings
+from slamlab.slam.matcher import MatchPoints, Matcher
+from slamlab.slam.motion import MotionModel
+from slamlab.slam.resample import Resampler
+from slamlab.slam.scan import ScanBatch
+from slamlab.slam.steps import select_steps
+from slamlab.slam.weighting import Weighting
+
+
+@dataclass(frozen=True, slots=True)
+class Components:
+    """The checked pieces of one run: the run-level knobs (`slamlab.config.run`; units in the
+    names) and the component objects built from the config groups."""
+
+    particles: int
+    seed: int
+    mode: str
+    every: int
+    min_distance_m: float
+    min_angle_rad: float
+    skip_static_start: bool
+    max_scans: int | None
+    max_steps: int | None
+    between: str
+    motion: MotionModel
+    weighting: Weighting
+    resampler: Resampler
+    matcher: Matcher
+    map: MapSettings
+    filter: FilterKind
+    record_particles: bool
+    record_replay: bool
+
+
+def plan_steps(sequence: Sequence, c: Components) -> tuple[list[ScanFrame], FloatArray, FloatArray, np.ndarray]:
+    """(scans, times (N,) s, odometry (N, 3), processed scan indices (K,)) of a run: the first
+    `steps.max_scans` scans, and with `steps.max_steps` the scans up to the last processed one."""
+    scans = sequence.scans if c.max_scans is None else sequence.scans[: c.max_scans]
+    if not scans:
+        raise ConfigError("steps.max_scans", f"sequence {sequence.name!r} has no scans to process")
+    times = scan_times(scans)
+    odom = scan_odometry(scans)
+    step_scans = select_steps(odom, c.every, c.min_distance_m, c.min_angle_rad, c.skip_static_start)
+    if c.max_steps is not None and len(step_scans) > c.max_steps:
+        # the run ends at its last processed scan (max_steps=1: the first scan's map alone)
+        step_scans = step_scans[: c.max_steps]
+        scans, times, odom = scans[: step_scans[-1] + 1], times[: step_scans[-1] + 1], odom[: step_scans[-1] + 1]
+    return scans, times, odom, step_scans
+
+
+class BetweenScans:
+    """The scans between filter steps (`steps.between=match`), projected and prepared for the
+    matcher `CHUNK_STEPS` steps (at most `CHUNK_SCANS` scans) at a time: one pass of NumPy
+    calls for a chunk instead of a few dozen per step (Intel has 1,364 steps and 12,125 scans
+    between them). Each scan's points do not depend on the scans prepared with it (tests:
+    `test_prepared_scans_pick_what_points_picks_scan_by_scan`, `project_scans`' in
+    test_carmen). Steps are asked for in order, each once (`of_step`)."""
+
+    CHUNK_STEPS = 16
+    CHUNK_SCANS = 2000  # at most ~0.5 MB of Intel's points however far apart the steps lie
+
+    def __init__(self, step_scans: np.ndarray, n_scans: int, project: Callable[[int, int], ScanBatch],
+                 prepare: Callable[[ScanBatch], ScanBatch | MatchPoints]) -> None:
+        """`project(a, b)`: scans a..b-1's points; `prepare`: those as the matcher takes them."""
+        self._steps = np.asarray(step_scans, dtype=np.int64)
+        self._stop = np.append(self._steps[1:], n_scans)  # step k's scans between: steps[k] + 1 .. stop[k] - 1
+        self._prepare = prepare
+        self._project = project
+        self._last = -1  # the chunk held serves steps up to _last - 1, its scans from _at
+        self._at = 0
+        self._prepared: ScanBatch | MatchPoints = ScanBatch.of([])
+        self.spent_s = 0.0  # wall seconds the last `of_step` spent preparing a chunk (0: none)
+        self.share_s = 0.0  # the held chunk's preparation per step it serves
+
+    def of_step(self, k: int) -> tuple[np.ndarray, ScanBatch | MatchPoints]:
+        """The scans between step k and the next that have points (their indices, scan order)
+        and those scans as `ParticleMaps.prepare_scans` gives them (a scan without points keeps
+        its odometry)."""
+        self.spent_s = 0.0
+        if k >= self._last:
+            t0 = time.perf_counter()
+            self._at = int(self._steps[k]) + 1
+            fits = int(np.searchsorted(self._stop, self._at + self.CHUNK_SCANS, side="right"))
+            self._last = max(k + 1, min(k + self.CHUNK_STEPS, fits, len(self._steps)))
+            self._prepared = self._prepare(self._project(self._at, int(self._stop[self._last - 1])))
+            self.spent_s = time.perf_counter() - t0
+            self.share_s = self.spent_s / (self._last - k)
+        a, b = int(self._steps[k]) + 1, int(self._stop[k])
+        part = self._prepared.scans(a - self._at, b - self._at)
+        return np.arange(a, b, dtype=np.int64)[part.counts > 0], part.nonempty()
