@@ -39,6 +39,7 @@ from slamlab.slam.tiled_match import tiled_field_search, tiled_grid_search
 from slamlab.slam.tiles import TiledMaps
 
 _CLIMB = np.zeros(0)  # no distance table: `field_search` / `tiled_field_search` hill-climb
+_NO_EXT_ROWS = np.zeros((0, 6))  # no stretches
 
 
 @numba.njit(cache=True)
@@ -126,6 +127,82 @@ def grid_search_hits(lo, thresh, ox, oy, inv_res, poses, pts, offsets, out_poses
         out_scores[i] = best
 
 
+@numba.njit(cache=True, inline="always")
+def _field_search_one(field, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw, ext, lut_d, sigma_cells, w_scale):
+    """One pose's search (`field_search`): the best pose (x, y, yaw), its fine score and the
+    number of fine scores computed."""
+    bx = px
+    by = py
+    bt = pt
+    if offsets.shape[0] > 1:
+        best = -1e300
+        bk = 0
+        for k in range(offsets.shape[0]):
+            sc = score_field(field, ox, oy, inv_res, px + offsets[k, 0], py + offsets[k, 1], pt + offsets[k, 2], coarse_pts)
+            sc -= kxy * (offsets[k, 0] ** 2 + offsets[k, 1] ** 2) + kyaw * offsets[k, 2] ** 2
+            if sc > best:
+                best = sc
+                bk = k
+        bx += offsets[bk, 0]
+        by += offsets[bk, 1]
+        bt += offsets[bk, 2]
+    if lut_d.shape[0] > 0:
+        return refine_pose(
+            field, NO_POOL, NO_TABLE, NO_LUT, lut_d, sigma_cells, ox, oy, inv_res, px, py, pt, bx, by, bt, fine_pts, kxy, kyaw, w_scale, 2.0 * lin_step, 2.0 * ang_step,
+        )
+    cur = _score_fine(field, ox, oy, inv_res, bx, by, bt, fine_pts, ext)
+    n_eval = 1
+    cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
+    ls = lin_step
+    as_ = ang_step
+    for _ in range(levels):
+        came = -1  # the move back to the last pose: its score is known (lower), skip it
+        for _it in range(16):  # bounded: a climb never runs away on a flat score
+            mx = bx
+            my = by
+            mt = bt
+            ms = cur
+            mm = -1
+            for m in range(6):
+                if m == came:
+                    continue
+                cx = bx
+                cy = by
+                ct = bt
+                if m == 0:
+                    cx += ls
+                elif m == 1:
+                    cx -= ls
+                elif m == 2:
+                    cy += ls
+                elif m == 3:
+                    cy -= ls
+                elif m == 4:
+                    ct += as_
+                else:
+                    ct -= as_
+                sc = _score_fine(field, ox, oy, inv_res, cx, cy, ct, fine_pts, ext)
+                n_eval += 1
+                sc -= kxy * ((cx - px) ** 2 + (cy - py) ** 2) + kyaw * (ct - pt) ** 2
+                if sc > ms:
+                    ms = sc
+                    mx = cx
+                    my = cy
+                    mt = ct
+                    mm = m
+            if ms > cur:
+                came = mm ^ 1  # 0<->1 (x), 2<->3 (y), 4<->5 (yaw)
+                bx = mx
+                by = my
+                bt = mt
+                cur = ms
+            else:
+                break
+        ls *= 0.5
+        as_ *= 0.5
+    return bx, by, bt, cur, n_eval
+
+
 @numba.njit(cache=True, parallel=True)
 def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals, ext, lut_d, sigma_cells, w_scale):
     """Coarse grid over `offsets` with `coarse_pts`, then hill climbing with `fine_pts`:
@@ -138,84 +215,29 @@ def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, l
     cells], Gauss-Newton steps replace the hill climb (`gauss_newton.refine_pose`; field
     sigma `sigma_cells`, `w_scale` = 1 / sigma_cells^2)."""
     for i in numba.prange(poses.shape[0]):  # particles on all cores; each result is its own
-        px = poses[i, 0]
-        py = poses[i, 1]
-        pt = poses[i, 2]
-        bx = poses[i, 0]
-        by = poses[i, 1]
-        bt = poses[i, 2]
-        if offsets.shape[0] > 1:
-            best = -1e300
-            bk = 0
-            for k in range(offsets.shape[0]):
-                sc = score_field(field, ox, oy, inv_res, px + offsets[k, 0], py + offsets[k, 1], pt + offsets[k, 2], coarse_pts)
-                sc -= kxy * (offsets[k, 0] ** 2 + offsets[k, 1] ** 2) + kyaw * offsets[k, 2] ** 2
-                if sc > best:
-                    best = sc
-                    bk = k
-            bx += offsets[bk, 0]
-            by += offsets[bk, 1]
-            bt += offsets[bk, 2]
-        if lut_d.shape[0] > 0:
-            bx, by, bt, cur, n_eval = refine_pose(
-                field, NO_POOL, NO_TABLE, NO_LUT, lut_d, sigma_cells, ox, oy, inv_res, px, py, pt, bx, by, bt, fine_pts, kxy, kyaw, w_scale, 2.0 * lin_step, 2.0 * ang_step,
-            )
-            out_poses[i, 0] = bx
-            out_poses[i, 1] = by
-            out_poses[i, 2] = bt
-            out_scores[i] = cur
-            out_evals[i] = n_eval
-            continue
-        cur = _score_fine(field, ox, oy, inv_res, bx, by, bt, fine_pts, ext)
-        n_eval = 1
-        cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
-        ls = lin_step
-        as_ = ang_step
-        for _ in range(levels):
-            came = -1  # the move back to the last pose: its score is known (lower), skip it
-            for _it in range(16):  # bounded: a climb never runs away on a flat score
-                mx = bx
-                my = by
-                mt = bt
-                ms = cur
-                mm = -1
-                for m in range(6):
-                    if m == came:
-                        continue
-                    cx = bx
-                    cy = by
-                    ct = bt
-                    if m == 0:
-                        cx += ls
-                    elif m == 1:
-                        cx -= ls
-                    elif m == 2:
-                        cy += ls
-                    elif m == 3:
-                        cy -= ls
-                    elif m == 4:
-                        ct += as_
-                    else:
-                        ct -= as_
-                    sc = _score_fine(field, ox, oy, inv_res, cx, cy, ct, fine_pts, ext)
-                    n_eval += 1
-                    sc -= kxy * ((cx - px) ** 2 + (cy - py) ** 2) + kyaw * (ct - pt) ** 2
-                    if sc > ms:
-                        ms = sc
-                        mx = cx
-                        my = cy
-                        mt = ct
-                        mm = m
-                if ms > cur:
-                    came = mm ^ 1  # 0<->1 (x), 2<->3 (y), 4<->5 (yaw)
-                    bx = mx
-                    by = my
-                    bt = mt
-                    cur = ms
-                else:
-                    break
-            ls *= 0.5
-            as_ *= 0.5
+        bx, by, bt, cur, n_eval = _field_search_one(
+            field, ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2], coarse_pts, fine_pts, offsets,
+            lin_step, ang_step, levels, kxy, kyaw, ext, lut_d, sigma_cells, w_scale,
+        )
+        out_poses[i, 0] = bx
+        out_poses[i, 1] = by
+        out_poses[i, 2] = bt
+        out_scores[i] = cur
+        out_evals[i] = n_eval
+
+
+@numba.njit(cache=True)
+def field_search_scans(field, ox, oy, inv_res, poses, coarse_pts, coarse_ends, fine_pts, fine_ends, offsets, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals):
+    """`field_search` for several scans on one map, serially: pose i searched with its own
+    points, rows coarse_ends[i]:coarse_ends[i + 1] of `coarse_pts` and fine_ends[i]:
+    fine_ends[i + 1] of `fine_pts` (hill climb; no stretches). Each result is what
+    `field_search` gives that scan alone. Serial: a single search is too short to hand to a
+    thread (the graph filter's local matches and its scans between steps)."""
+    for i in range(poses.shape[0]):
+        bx, by, bt, cur, n_eval = _field_search_one(
+            field, ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2], coarse_pts[coarse_ends[i]:coarse_ends[i + 1]],
+            fine_pts[fine_ends[i]:fine_ends[i + 1]], offsets, lin_step, ang_step, levels, kxy, kyaw, _NO_EXT_ROWS, _CLIMB, 0.0, 0.0,
+        )
         out_poses[i, 0] = bx
         out_poses[i, 1] = by
         out_poses[i, 2] = bt
@@ -613,6 +635,30 @@ class LikelihoodFieldMatcher(Matcher):
         self._count_field_reads(len(poses), len(coarse), len(fine), evals, ext)
         return self._finish(poses, best, scores)
 
+    def match_scans_on(self, grid: OccupancyGrid, poses: FloatArray, scans: ScanBatch | MatchPoints) -> tuple[FloatArray, FloatArray]:
+        """Scan i of `scans` (none empty), predicted at poses[i] (S, 3), against the one map
+        `grid`, in one serial kernel call (`field_search_scans`): the matched poses (S, 3) and
+        their scores (S,), each what `match` gives that scan alone (without stretches: with
+        `isolated=stretch` the scans are matched one `match` at a time)."""
+        assert grid.field is not None, "grid built without a likelihood field"
+        if self.stretches or self.gauss_newton:
+            batch = scans if isinstance(scans, ScanBatch) else None
+            assert batch is not None, "stretches and Gauss-Newton match scans as they are"
+            out = [self.match(grid, poses[i:i + 1], batch.points(i)) for i in range(len(batch))]
+            return np.concatenate([o[0] for o in out]) if out else np.empty((0, 3)), np.concatenate([o[1] for o in out]) if out else np.empty(0)
+        pts = self.prepare_scans(scans) if isinstance(scans, ScanBatch) else scans
+        n = len(pts)
+        best = np.empty((n, 3))
+        scores = np.empty(n)
+        evals = np.empty(n, dtype=np.int64)
+        field_search_scans(
+            grid.field, grid.origin[0], grid.origin[1], 1.0 / grid.res, np.ascontiguousarray(poses, dtype=np.float64),
+            pts.coarse, pts.coarse_ends, pts.fine, pts.fine_ends, self.offsets, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5,
+            self.refine_levels, self.kxy, self.kyaw, best, scores, evals,
+        )
+        self.map_reads += len(pts.coarse) * 4 * len(self.offsets) * (len(self.offsets) > 1) + 4 * int((evals * pts.samples).sum())
+        return self._finish(np.asarray(poses, dtype=np.float64), best, scores)
+
     def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0,
                    tables: np.ndarray | None = None) -> tuple[FloatArray, FloatArray]:
         coarse, fine, ext = self._points(scan)
@@ -686,6 +732,11 @@ class LikelihoodFieldMatcher(Matcher):
             table = np.array([cap]) if lut is None else distance_table(lut, sigma, cap)
             cache[key] = (table, sigma, 1.0 / sigma**2)
         return cache[key]
+
+    def fine_points(self, scan: ScanPoints) -> FloatArray:
+        """(M, 2) the points of `scan` the hill climb and the score use (after
+        `isolated_filter` and `voxel_filter`; body frame, m)."""
+        return self._points(scan)[1]
 
     def _points(self, scan: ScanPoints) -> tuple[FloatArray, FloatArray, FloatArray]:
         """The scan points the coarse grid and the hill climb use (after `isolated_filter`
