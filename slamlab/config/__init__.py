@@ -24,6 +24,7 @@ from slamlab.config.sim import SimDatasetConfig, SimParams
 from slamlab.config.slam import (
     CourseFilterConfig,
     CourseMotionConfig,
+    GraphFilterConfig,
     GridMatcherConfig,
     LikelihoodMatcherConfig,
     LinearExpWeightingConfig,
@@ -49,7 +50,7 @@ SCHEMAS: dict[str, dict[str, type]] = {
                   "multinomial": MultinomialResamplerConfig, "residual": ResidualResamplerConfig},
     "matcher": {"grid": GridMatcherConfig, "likelihood": LikelihoodMatcherConfig},
     "map": {"default": MapConfig},
-    "filter": {"course": CourseFilterConfig, "rbpf": RbpfFilterConfig},
+    "filter": {"course": CourseFilterConfig, "rbpf": RbpfFilterConfig, "graph": GraphFilterConfig},
     "ground": {"threshold": ThresholdGroundConfig, "plane": PlaneGroundConfig, "image_plane": ImagePlaneGroundConfig},
     "texture": {"default": TextureConfig},
     "dataset": {"sim": SimDatasetConfig, "carmen": CarmenDatasetConfig, "thor": ThorDatasetConfig, "rosbag": RosbagDatasetConfig},

@@ -306,9 +306,84 @@ class RbpfFilterConfig:
             require_positive(self.GROUP, "step_ref_rad", self.step_ref_rad)
 
 
+@dataclass
+class GraphFilterConfig:
+    """`filter=graph`: one trajectory, no particles. Local SLAM matches each processed scan
+    against the older of two active submaps; each new node is searched against finished
+    submaps by branch and bound; accepted loop closures and the local matches form a pose
+    graph optimised with GTSAM under a robust loss (slamlab.slam.graph)."""
+
+    GROUP: ClassVar[str] = "filter"
+    _target_: str = "slamlab.slam.graph.GraphFilter"
+    # ---- local SLAM
+    local_map: str = "map"  # what each scan is matched against: `map` (everything mapped so far, at the online poses;
+    # redrawn after a large correction) or `submap` (the older active submap, as Cartographer)
+    redraw_m: float = 0.3  # local_map=map: when the graph puts the robot this far (m) or redraw_rad from where the
+    redraw_rad: float = 0.035  # local map has it, the map is drawn again from the graph (the online pose jumps to the graph's)
+    submap_nodes: int = 20  # nodes (processed scans) inserted into each submap; a new one starts every half of it
+    # ---- loop search (branch and bound on the finished submaps)
+    search_resolution_m: float = 0.1  # cell of the search grid (rounded to a whole number of map cells)
+    search_levels: int = 6  # branch-and-bound levels: the top node covers 2^(levels-1) cells a side
+    search_every: int = 1  # search for loops from every k-th node
+    window_m: float = 1.0  # +- x and y searched around the current estimate right after a closure (m) ...
+    window_per_m: float = 0.1  # ... growing by this per metre travelled since the last accepted closure
+    window_max_m: float = 60.0  # ... up to this (m)
+    window_yaw_rad: float = 0.2  # +- yaw right after a closure (rad) ...
+    window_yaw_per_m: float = 0.01  # ... growing per metre travelled (rad/m), to a full turn
+    min_score: float = 0.55  # branch-and-bound score a candidate must reach (mean search-grid value, 0..1)
+    min_refined_score: float = 0.5  # mean field value at the refined pose (0..1)
+    ambiguity_ratio: float = 0.95  # rejected when another pose (ambiguity_m / ambiguity_rad away) scores this much of the best
+    ambiguity_m: float = 1.0
+    ambiguity_rad: float = 0.35
+    max_submaps_per_node: int = 2  # nearest finished submaps searched from one node
+    # ---- verification: a closure that moves its node by more than trust_m / trust_rad needs a group of mutually
+    # consistent ones
+    trust_m: float = 0.1  # a closure asking for a correction within this (m) ...
+    trust_rad: float = 0.02  # ... and this in yaw (rad), as a 99 % gate where the match pins the pose, enters alone
+    far_m: float = 1.0  # accepted closures this far (m) from the estimate: optimise the whole graph from LAGO at once
+    group_size: int = 3  # closures from a wider window enter in pairwise-consistent groups of at least this many
+    group_extent_m: float = 8.0  # ... whose nodes spread over at least this much of the path (m)
+    group_span_m: float = 20.0  # candidates wait this far (m of travel) for their group
+    consistency_m: float = 0.3  # pairwise cycle error allowed (m) ...
+    consistency_per_m: float = 0.02  # ... plus this per metre of the cycle's path
+    consistency_rad: float = 0.05  # pairwise cycle error allowed in yaw (rad) ...
+    consistency_rad_per_m: float = 0.002  # ... plus this per metre (rad/m)
+    # ---- pose graph (GTSAM)
+    local_sigma_m: float = 0.01  # local match between consecutive nodes: sigma = this + per_m x step (m)
+    local_sigma_per_m: float = 0.02
+    local_sigma_rad: float = 0.005  # ... and in yaw: this + per_rad x |turn| (rad)
+    local_sigma_per_rad: float = 0.02
+    loop_sigma_m: float = 0.03  # a loop closure's sigma in x, y (m) and yaw (rad)
+    loop_sigma_rad: float = 0.01
+    loss: str = "cauchy"  # robust loss on loop closures: cauchy | huber | none
+    loss_scale: float = 1.0  # the loss's scale in sigmas
+    prune_m: float = 0.5  # after an optimisation a closure left this far (m) or prune_rad off is dropped
+    prune_rad: float = 0.15
+    online: str = "best"  # the particle filters' choice of online pose: no effect here (the online pose is the
+    # graph's estimate at each scan's time); accepted so that `filter=` can switch a preset that sets it
+
+    def __post_init__(self) -> None:
+        g = self.GROUP
+        for name in ("submap_nodes", "search_levels", "search_every", "max_submaps_per_node", "group_size"):
+            require_int(g, name, getattr(self, name), 2 if name in ("submap_nodes",) else 1)
+        if self.search_levels > 12:
+            raise ConfigError(f"{g}.search_levels", f"must be at most 12, got {self.search_levels!r}")
+        for name in ("search_resolution_m", "window_max_m", "ambiguity_m", "ambiguity_rad", "loop_sigma_m", "loop_sigma_rad", "trust_m", "trust_rad", "far_m", "redraw_m", "redraw_rad",
+                     "local_sigma_m", "local_sigma_rad", "loss_scale", "prune_m", "prune_rad", "consistency_m", "consistency_rad"):
+            require_positive(g, name, getattr(self, name))
+        for name in ("window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "group_extent_m", "group_span_m",
+                     "consistency_per_m", "consistency_rad_per_m", "local_sigma_per_m", "local_sigma_per_rad"):
+            require_nonnegative(g, name, getattr(self, name))
+        for name in ("min_score", "min_refined_score", "ambiguity_ratio"):
+            require_fraction(g, name, getattr(self, name))
+        require_choice(g, "loss", self.loss, ("cauchy", "huber", "none"))
+        require_choice(g, "local_map", self.local_map, ("map", "submap"))
+        _check_online(self.online)
+
+
 __all__ = [
     "CourseMotionConfig", "Odometry4MotionConfig",
     "LinearWeightingConfig", "LinearExpWeightingConfig", "LogSumExpWeightingConfig",
     "ResamplerConfig", "SystematicResamplerConfig", "StratifiedResamplerConfig", "MultinomialResamplerConfig", "ResidualResamplerConfig",
-    "GridMatcherConfig", "LikelihoodMatcherConfig", "MapConfig", "CourseFilterConfig", "RbpfFilterConfig",
+    "GridMatcherConfig", "LikelihoodMatcherConfig", "MapConfig", "CourseFilterConfig", "RbpfFilterConfig", "GraphFilterConfig",
 ]

@@ -1,0 +1,100 @@
+"""Local SLAM: where each processed scan is, relative to what was mapped before it.
+
+The odometry increment predicts each node and the run's likelihood-field matcher (with its
+motion prior) moves it to where the scan fits the local map (`filter.local_map`):
+- `map`: one map of everything mapped so far, drawn at the online poses (the course filter's
+  shared map with one pose). A scan in a place seen before fits that place at once, not only
+  after a loop closure and an optimisation, so the online pose does not drift between
+  closures (measured: `conf/filter/graph.yaml`). When the graph puts the robot far from where
+  this map has it (a long loop closed), the map is drawn again from every node's optimised
+  pose (`redraw`) and the online pose becomes the graph's.
+- `submap`: the older of the two active submaps (Cartographer's local SLAM); the online pose
+  is then the graph's estimate of the newest node.
+The matched motion between consecutive nodes is the pose graph's local edge, and the chain
+of those motions (the local frame, never redrawn) is where the submaps are built.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence as SequenceABC
+
+import numpy as np
+
+from slamlab.geometry import FloatArray, se2_between, se2_compose
+from slamlab.slam.graph.submaps import FinishedSubmap, Submaps
+from slamlab.slam.grid import MapSettings, OccupancyGrid
+from slamlab.slam.matcher import LikelihoodFieldMatcher, MatchPoints
+from slamlab.slam.scan import ScanBatch, ScanPoints, points_to_world
+
+
+class LocalSlam:
+    """The chain poses, the submaps and (local_map=map) the online map (see module doc)."""
+
+    def __init__(self, matcher: LikelihoodFieldMatcher, settings: MapSettings, submaps: Submaps, local_map: str,
+                 start: FloatArray) -> None:
+        self.matcher = matcher
+        self.settings = settings
+        self.submaps = submaps
+        self.grid = self._new_grid((float(start[0]), float(start[1]))) if local_map == "map" else None
+        self.chain = np.asarray(start, dtype=np.float64).copy()  # the newest node's chain pose (local frame)
+        self.online = self.chain.copy()  # its online pose (the online map's frame)
+        self.redraws = 0
+
+    @property
+    def whole(self) -> bool:
+        """Whether the online pose is matched against a map of everything (local_map=map)."""
+        return self.grid is not None
+
+    def _new_grid(self, start_xy: tuple[float, float]) -> OccupancyGrid:
+        return OccupancyGrid(self.settings, start_xy, self.matcher.field_sigma_m, self.matcher.field_radius_m)
+
+    def _match(self, grid: OccupancyGrid, predicted: FloatArray, scan: ScanPoints) -> FloatArray:
+        return self.matcher.match_scans_on(grid, predicted.reshape(1, 3), ScanBatch.of([scan]))[0][0]
+
+    def step(self, odometry_increment: FloatArray, scan: ScanPoints) -> FloatArray:
+        """The next node: the odometry increment (robot frame) predicts it and the scan is
+        matched against the online map (local_map=map) or the older active submap
+        (local_map=submap); the chain pose (the submaps' frame) follows by the same motion.
+        Returns that motion: the pose graph's local edge."""
+        if self.grid is not None:
+            predicted = se2_compose(self.online, odometry_increment)
+            online = self._match(self.grid, predicted, scan) if len(scan.xy) else predicted
+            motion = se2_between(self.online, online)
+            self.online = online
+            self.chain = se2_compose(self.chain, motion)
+            return motion
+        predicted = se2_compose(self.chain, odometry_increment)
+        chain = self._match(self.submaps.matching().grid, predicted, scan) if len(scan.xy) and self.submaps.active else predicted
+        motion = se2_between(self.chain, chain)
+        self.chain = self.online = chain
+        return motion
+
+    def match_online(self, predicted: FloatArray, scans: ScanBatch | MatchPoints) -> FloatArray:
+        """The poses (S, 3) where scans (none empty) fit the online map as it is now (the
+        older active submap with local_map=submap), predicted in its frame."""
+        grid = self.grid if self.grid is not None else self.submaps.matching().grid
+        return self.matcher.match_scans_on(grid, predicted, scans)[0]
+
+    def insert(self, node: int, scan: ScanPoints) -> list[FinishedSubmap]:
+        """Add node `node`'s scan at its poses: the online map's and the submaps'; returns the
+        submaps it finished."""
+        if self.grid is not None and len(scan.xy):
+            self.grid.insert(points_to_world(scan.origin.reshape(1, 2), self.online)[0], points_to_world(scan.xy, self.online))
+        return self.submaps.insert(node, self.chain, scan)
+
+    def redraw(self, scans: SequenceABC[ScanPoints], poses: FloatArray) -> None:
+        """After the graph moved the robot far from where the online map has it: the online map
+        drawn again from every node's scan at its optimised pose (`scans`, `poses` (K, 3):
+        nodes 0..K-1), the newest node's online pose becoming its optimised one."""
+        assert self.grid is not None, "local_map=submap keeps no online map"
+        self.redraws += 1
+        grid = self._new_grid((float(poses[0, 0]), float(poses[0, 1])))
+        for pts, pose in zip(scans, poses):
+            if len(pts.xy):
+                grid.insert(points_to_world(pts.origin.reshape(1, 2), pose)[0], points_to_world(pts.xy, pose))
+        self.grid = grid
+        self.online = np.asarray(poses[-1], dtype=np.float64).copy()
+
+    def memory_mb(self) -> float:
+        own = 0 if self.grid is None else self.grid.log_odds.nbytes + (self.grid.field.nbytes if self.grid.field is not None else 0)
+        return own / 1e6 + self.submaps.memory_mb()

@@ -1,0 +1,309 @@
+"""Loop search: a node's scan against the finished submaps near its current estimate.
+
+For each submap whose area the search window reaches (nearest first, at most
+`max_submaps_per_node`):
+1. branch and bound (`branch_bound.CorrelativeSearch`) over the window on the submap's
+   max-pooled field, one scan point per search cell; no candidate above `min_score`: nothing;
+2. the best candidate is refined like a local match (hill climbing on the submap's field at
+   map resolution, no motion prior) and must keep a mean field value of `min_refined_score`;
+3. the ambiguity test: the best candidate at least `ambiguity_m` / `ambiguity_rad` away must
+   score under `ambiguity_ratio` times the best (a corridor seen end to end, or slid along
+   its length, matches as well the wrong way round: such a match says nothing);
+4. what passes is a candidate closure: the node's pose seen from the submap's anchor node.
+The window is the uncertainty of the estimate: `window_m` right after an accepted closure,
+growing by `window_per_m` per metre travelled since (likewise the yaw window, up to a full
+turn), so after a long loop the search covers whole submaps at every yaw.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+
+from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse
+from slamlab.slam.graph.branch_bound import CorrelativeSearch, SearchWindow, yaw_step_for
+from slamlab.slam.graph.submaps import FinishedSubmap, Submaps
+from slamlab.slam.matcher import field_search, score_field, voxel_filter
+from slamlab.slam.raycast import line_start, line_step
+
+# loop-candidate statuses (the report draws them apart)
+ACCEPTED = "accepted"
+AMBIGUOUS = "ambiguous"
+WEAK = "weak"  # the refined match fell below min_refined_score
+PENDING = "pending"
+INCONSISTENT = "inconsistent"  # no group of mutually consistent closures took it in time
+PRUNED = "pruned"  # accepted, then left far off by the optimised graph and dropped
+
+WALL_MARGIN_M = 0.3  # a beam passing through a wall this close to its end (m) is not a contradiction
+AMBIGUITY_SEARCH = 0.9  # the second best is searched down to this share of the ambiguity ratio, then refined
+FIELD_CACHE = 8  # float32 fields kept for refinement (a revisit refines against the same few submaps)
+MIN_POINTS = 20  # a scan with fewer search points is not searched (too little to tell places apart)
+_NO_EXT = np.zeros((0, 6))
+_NO_LUT = np.zeros(0)
+_NO_OFFSETS = np.zeros((1, 3))
+
+
+@dataclass(slots=True)
+class LoopCandidate:
+    """One candidate closure: node `node`'s scan matched into submap `submap` (anchor node
+    `anchor`). `relative`: the node's pose seen from the anchor's (the edge the graph gets);
+    `score` the branch-and-bound score, `refined` the mean field value after refinement,
+    `second` the refined score of the best pose elsewhere (0: none came near); `window_m` the
+    half width searched (m); `node_pose` the node's estimate when it was searched and
+    `match_pose` where the match put it then (global frame, m, rad); `status` see above;
+    `covariance` (3, 3) how well the match pins the pose (`match_covariance`): down a
+    corridor it barely says where along it the robot is, and its covariance says so."""
+
+    node: int
+    submap: int
+    anchor: int
+    relative: FloatArray
+    score: float
+    refined: float
+    second: float
+    window_m: float
+    node_pose: FloatArray
+    match_pose: FloatArray
+    status: str = PENDING
+    loop_id: int = -1  # its id in the pose graph once accepted
+    covariance: FloatArray = field(default_factory=lambda: np.diag([1.0, 1.0, 0.1]))  # of `relative`, node frame (m^2, rad^2)
+    see_through: float = 0.0  # share of the scan's beams that pass through the submap's walls at the match
+    free_ends: float = 0.0  # share of its beams that end where the submap saw free space
+
+
+@dataclass(frozen=True, slots=True)
+class WindowPolicy:
+    """The search window: `xy_m` + `per_m` x d (to `max_m`) and `yaw_rad` + `yaw_per_m` x d,
+    d the path (m) travelled since the last accepted closure."""
+
+    xy_m: float
+    per_m: float
+    max_m: float
+    yaw_rad: float
+    yaw_per_m: float
+
+    def at(self, travelled_m: FloatArray) -> FloatArray:
+        """(S, 2) (half width m, half yaw rad) after `travelled_m` (S,) metres without a closure."""
+        d = np.asarray(travelled_m, dtype=np.float64)
+        return np.column_stack([np.minimum(self.xy_m + self.per_m * d, self.max_m), np.minimum(self.yaw_rad + self.yaw_per_m * d, math.pi)])
+
+
+@dataclass(frozen=True, slots=True)
+class SearchSettings:
+    """The loop search's knobs (`GraphFilter`'s, see its config)."""
+
+    resolution_m: float
+    levels: int
+    min_score: float
+    min_refined_score: float
+    ambiguity_ratio: float
+    ambiguity_m: float
+    ambiguity_rad: float
+    max_submaps: int
+
+
+class LoopSearch:
+    """Searches one node's scan against the finished submaps (see module doc)."""
+
+    def __init__(self, settings: SearchSettings, refine_step_m: float, refine_levels: int, sigma_m: float, sigma_rad: float) -> None:
+        self.s = settings
+        self.sigma_m = sigma_m  # the floor of a closure's sigma (m, rad): `match_covariance`
+        self.sigma_rad = sigma_rad
+        self.refine_step_m = refine_step_m
+        self.refine_levels = refine_levels
+        self.searches = 0  # branch-and-bound searches run
+        self.nodes_scored = 0  # bounds computed by them
+        self.seconds = 0.0
+        self._fields: dict[int, np.ndarray] = {}  # float32 fields of the submaps refined lately
+
+    def submaps_in_reach(self, pose: FloatArray, submaps: Submaps, anchors_global: FloatArray,
+                         windows: FloatArray) -> list[tuple[FinishedSubmap, FloatArray, tuple[float, float]]]:
+        """(submap, the node's pose in the submap's frame, window) for the finished submaps
+        whose known area their window (`windows` (S, 2): half width m, half yaw rad) around
+        `pose` reaches, nearest first, at most `max_submaps`. `anchors_global` (S, 3): each
+        finished submap's anchor's estimate."""
+        frames = se2_compose(anchors_global, se2_inverse(submaps.finished_anchor_local))  # submap frame -> global
+        guess = se2_between(frames, pose)
+        d = np.hypot(guess[:, 0] - submaps.finished_center[:, 0], guess[:, 1] - submaps.finished_center[:, 1])
+        near = np.flatnonzero(d <= submaps.finished_radius + windows[:, 0])
+        near = near[np.argsort(d[near], kind="stable")][: self.s.max_submaps]
+        return [(submaps.finished[j], guess[j], (float(windows[j, 0]), float(windows[j, 1]))) for j in near]
+
+    def search(self, node: int, pose: FloatArray, fine_pts: FloatArray, origin: FloatArray, reach: list[tuple[FinishedSubmap, FloatArray, tuple[float, float]]],
+               anchors_global: dict[int, FloatArray]) -> list[LoopCandidate]:
+        """Candidates of node `node` (estimate `pose`, scan points `fine_pts` (M, 2) body
+        frame, m, seen from the lidar at `origin` there) in the submaps `reach` (`submaps_in_reach`). Only matches above
+        `min_score` become candidates (with their status)."""
+        t0 = time.perf_counter()
+        s = self.s
+        pts = voxel_filter(fine_pts, s.resolution_m)
+        out: list[LoopCandidate] = []
+        if len(pts) < MIN_POINTS:
+            return out
+        yaw_step = yaw_step_for(pts, s.resolution_m)
+        for sm, guess, (half_xy, half_yaw) in reach:
+            grid = sm.search_grid(s.resolution_m, s.levels)
+            # the window, cut to the submap's area (the robot stood where the submap saw from)
+            H, W = sm.field_u8.shape
+            lo = np.maximum(guess[:2] - half_xy, sm.origin)
+            hi = np.minimum(guess[:2] + half_xy, sm.origin + np.array([W, H]) * sm.resolution_m)
+            if np.any(hi < lo):
+                continue
+            centre = (lo + hi) / 2
+            win = SearchWindow(np.array([centre[0], centre[1], guess[2]]), float(hi[0] - lo[0]) / 2, float(hi[1] - lo[1]) / 2, half_yaw)
+            cs = CorrelativeSearch(grid, pts, win, yaw_step)
+            best = cs.best(s.min_score)
+            self.searches += 1
+            self.nodes_scored += best.nodes
+            if not best.found:
+                continue
+            field = self._field(sm)
+            refined_pose, refined = self._refine(sm, field, best.pose, fine_pts)
+            second = 0.0
+            status = PENDING
+            if refined < s.min_refined_score:
+                status = WEAK
+            else:
+                # another pose scoring near the best in the search, refined like it, must stay
+                # clearly below it: both refined, so the grid's discretisation cannot decide
+                other = cs.best_outside(best, s.ambiguity_m, s.ambiguity_rad, AMBIGUITY_SEARCH * s.ambiguity_ratio * best.score)
+                self.nodes_scored += other.nodes
+                if other.found:
+                    second = self._refine(sm, field, other.pose, fine_pts)[1]
+                    if second >= s.ambiguity_ratio * refined:
+                        status = AMBIGUOUS
+            through, free_end, _ = contradictions(sm.state_u8, sm.field_u8, float(sm.origin[0]), float(sm.origin[1]), 1.0 / sm.resolution_m,
+                                                  float(refined_pose[0]), float(refined_pose[1]), float(refined_pose[2]),
+                                                  np.ascontiguousarray(fine_pts, dtype=np.float64), float(origin[0]), float(origin[1]),
+                                                  int(round(WALL_MARGIN_M / sm.resolution_m)))
+            anchor_pose = anchors_global[sm.anchor]
+            relative = se2_between(sm.anchor_local, refined_pose)
+            out.append(LoopCandidate(
+                node=node, submap=sm.index, anchor=sm.anchor, relative=relative, score=best.score, refined=refined,
+                second=second, window_m=half_xy, node_pose=np.asarray(pose, dtype=np.float64).copy(),
+                match_pose=se2_compose(anchor_pose, relative), status=status,
+                covariance=match_covariance(field, sm.origin, sm.resolution_m, refined_pose, fine_pts, self.sigma_m, self.sigma_rad),
+                see_through=through / max(len(fine_pts), 1), free_ends=free_end / max(len(fine_pts), 1),
+            ))
+        self.seconds += time.perf_counter() - t0
+        return out
+
+    def _field(self, sm: FinishedSubmap) -> np.ndarray:
+        """The submap's field as float32 (kept for the last few submaps refined against)."""
+        field = self._fields.get(sm.index)
+        if field is None:
+            field = sm.field_float()
+            self._fields[sm.index] = field
+            while len(self._fields) > FIELD_CACHE:  # oldest first out
+                self._fields.pop(next(iter(self._fields)))
+        return field
+
+    def _refine(self, sm: FinishedSubmap, field: np.ndarray, pose: FloatArray, pts: FloatArray) -> tuple[FloatArray, float]:
+        """Hill climbing on the submap's field from `pose` (submap frame), no motion prior:
+        the refined pose and its mean field value over the points (0..1)."""
+        out = np.empty((1, 3))
+        score = np.empty(1)
+        evals = np.empty(1, dtype=np.int64)
+        p = np.ascontiguousarray(pts, dtype=np.float64)
+        yaw_step = self.refine_step_m / max(float(np.max(np.hypot(p[:, 0], p[:, 1]))), 1.0)
+        field_search(field, float(sm.origin[0]), float(sm.origin[1]), 1.0 / sm.resolution_m, pose.reshape(1, 3).astype(np.float64),
+                     p, p, _NO_OFFSETS, self.refine_step_m, yaw_step, self.refine_levels, 0.0, 0.0, out, score, evals,
+                     _NO_EXT, _NO_LUT, 0.0, 0.0)
+        return out[0], float(score[0]) / max(len(p), 1)
+
+
+@numba.njit(cache=True)
+def score_hessian(field, ox, oy, inv_res, x, y, th, pts, h_m, h_rad):
+    """(3, 3) second differences of `score_field` at pose (x, y, th) over (x m, y m, th rad),
+    steps h_m and h_rad (central differences; mixed terms from the four diagonal neighbours)."""
+    h = np.array([h_m, h_m, h_rad])
+    base = np.array([x, y, th])
+    f0 = score_field(field, ox, oy, inv_res, x, y, th, pts)
+    out = np.empty((3, 3))
+    for a in range(3):
+        p = base.copy()
+        p[a] += h[a]
+        fp = score_field(field, ox, oy, inv_res, p[0], p[1], p[2], pts)
+        p[a] -= 2 * h[a]
+        fm = score_field(field, ox, oy, inv_res, p[0], p[1], p[2], pts)
+        out[a, a] = (fp - 2 * f0 + fm) / (h[a] * h[a])
+        for b in range(a + 1, 3):
+            total = 0.0
+            for sa in (-1.0, 1.0):
+                for sb in (-1.0, 1.0):
+                    q = base.copy()
+                    q[a] += sa * h[a]
+                    q[b] += sb * h[b]
+                    total += sa * sb * score_field(field, ox, oy, inv_res, q[0], q[1], q[2], pts)
+            out[a, b] = out[b, a] = total / (4 * h[a] * h[b])
+    return out
+
+
+@numba.njit(cache=True)
+def contradictions(state, field, ox, oy, inv_res, x, y, th, pts, sx, sy, margin_cells):
+    """How a scan seen from pose (x, y, th) contradicts a submap's cell states (`state`:
+    UNKNOWN 0, FREE 1, OCCUPIED 2; origin (ox, oy) m, 1 / inv_res m cells): (beams that pass
+    through an occupied cell more than `margin_cells` before their end, beams whose end lies
+    in a free cell, beams that cross the submap at all). The lidar sits at (sx, sy) in the
+    body frame; `pts` (M, 2) are the beams' ends there. An end counts as free only where the
+    field (`field`, as `state`) holds no wall within its radius."""
+    H, W = state.shape
+    c = math.cos(th)
+    s = math.sin(th)
+    r0 = int(math.floor((y + s * sx + c * sy - oy) * inv_res))
+    c0 = int(math.floor((x + c * sx - s * sy - ox) * inv_res))
+    through = 0
+    free_end = 0
+    seen = 0
+    for i in range(pts.shape[0]):
+        r1 = int(math.floor((y + s * pts[i, 0] + c * pts[i, 1] - oy) * inv_res))
+        c1 = int(math.floor((x + c * pts[i, 0] - s * pts[i, 1] - ox) * inv_res))
+        dr, dc, sr, sc, err, major_c, n = line_start(r0, c0, r1, c1)
+        r = r0
+        cc = c0
+        known = False
+        hit = False
+        for step in range(n - margin_cells):
+            if 0 <= r < H and 0 <= cc < W:
+                v = state[r, cc]
+                if v != 0:
+                    known = True
+                if v == 2:
+                    hit = True
+                    break
+            r, cc, err = line_step(r, cc, err, dr, dc, sr, sc, major_c)
+        end_free = 0 <= r1 < H and 0 <= c1 < W and state[r1, c1] == 1 and field[r1, c1] == 0
+        if known or end_free:
+            seen += 1
+        if hit:
+            through += 1
+        elif end_free:
+            free_end += 1
+    return through, free_end, seen
+
+
+MAX_SIGMA_M = 10.0  # a match that pins nothing along some direction gets this sigma there (m; rad for yaw)
+
+
+def match_covariance(field: np.ndarray, origin: FloatArray, res_m: float, pose: FloatArray, pts: FloatArray,
+                     sigma_m: float, sigma_rad: float) -> FloatArray:
+    """(3, 3) covariance of a matched pose (in the node's own frame, the frame of a
+    `BetweenFactorPose2` error): the score's curvature at the match, taken as the information
+    of a log-likelihood (the field is a Gaussian of the distance to the wall: a point on a wall
+    adds 1 / sigma_field^2 per m^2 across it), inverted, plus the floor sigma_m^2 / sigma_rad^2
+    on each axis. Across a corridor a match is pinned to ~1 cm, along it by nothing but the
+    corridor's ends: its covariance there is large and the graph takes no along-track pull from it."""
+    p = np.ascontiguousarray(pts, dtype=np.float64)
+    hess = score_hessian(field, float(origin[0]), float(origin[1]), 1.0 / res_m, float(pose[0]), float(pose[1]), float(pose[2]),
+                         p, res_m, res_m / max(float(np.max(np.hypot(p[:, 0], p[:, 1]))), 1.0))
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # node frame -> submap frame
+    info = rot.T @ (-hess) @ rot
+    w, v = np.linalg.eigh((info + info.T) / 2)
+    w = np.maximum(w, 1.0 / MAX_SIGMA_M**2)  # a flat or concave direction: pinned by nothing
+    cov = (v / w) @ v.T
+    return cov + np.diag([sigma_m**2, sigma_m**2, sigma_rad**2])

@@ -1,0 +1,296 @@
+"""The graph filter's loop: local SLAM, loop search, pose-graph optimisation.
+
+    run_graph(sequence, components) -> SlamResult
+
+Per processed step k (the same steps as the particle filters, `steps.*`):
+1. local SLAM: the odometry increment predicts the local pose; the scan is matched against
+   the older active submap (the run's likelihood-field matcher with its motion prior) and
+   inserted into both active submaps (`submaps.Submaps`);
+2. node k joins the pose graph after node k-1 by that matched motion;
+3. every `search_every` nodes, the scan is searched against the finished submaps in reach
+   (`loops.LoopSearch`); candidates go through the verifier (`verify.ClosureVerifier`), and
+   the accepted ones become robust edges of the graph;
+4. the graph is optimised when closures came in (at most every `optimise_every` nodes, at
+   once when the new closures disagree with the estimate by more than `trust_window_m`: the
+   first return of a long loop); closures the optimum leaves far off are dropped and the
+   graph optimised again;
+5. the online (causal) pose of step k is node k's estimate now; scans between steps are
+   matched against the older active submap as it is now (`steps.between=match`).
+At the end the graph is optimised once more: its estimate is the smoothed trajectory, and the
+final map is drawn by ray casting every node's scan from its optimised pose.
+
+How far a submap can be from where the estimate puts it grows with the path travelled
+between the node and the submap since they were last tied together: the shorter of the path
+itself and, through any accepted closure, the path from the closure's node plus the path
+between its anchor and the submap's (`_drift_paths`). That distance sets each submap's
+search window (`loops.WindowPolicy`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from slamlab.errors import ConfigError
+from slamlab.frames import Sequence
+from slamlab.geometry import FloatArray, se2_between, se2_compose
+from slamlab.io.table import Table
+from slamlab.slam.graph import GraphFilter
+from slamlab.slam.graph.local import LocalSlam
+from slamlab.slam.graph.loops import ACCEPTED, PRUNED, LoopCandidate, LoopSearch, SearchSettings, WindowPolicy
+from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
+from slamlab.slam.graph.submaps import Submaps
+from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, correction_fits
+from slamlab.slam.grid import OccupancyGrid
+from slamlab.slam.matcher import LikelihoodFieldMatcher
+from slamlab.slam.plan import BetweenScans, Components, plan_steps
+from slamlab.slam.result import SlamResult
+from slamlab.slam.scan import ScanBatch, ScanPoints, points_to_world, project_scans, range_limits, scan_to_points
+from slamlab.slam.steps import fill_between_steps
+
+FAR_RAD_PER_M = 0.1  # a correction of far_m metres, or of far_m x this in yaw (rad), is a large one
+REFRESH_EVERY = 10  # every node's estimate read back from ISAM2 every this many nodes (the search windows'
+# submap placements, and the check of every closure against the estimate)
+
+
+def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], bool | None] | None = None) -> SlamResult:
+    """Run the graph filter over `sequence` (see module doc). `progress(scans_done,
+    scans_total)` after every step; when it returns True the run stops there and returns the
+    scans up to that step."""
+    f = c.filter
+    assert isinstance(f, GraphFilter)
+    s = f.settings
+    matcher = c.matcher
+    if not isinstance(matcher, LikelihoodFieldMatcher):
+        raise ConfigError("matcher", "filter=graph matches into submaps with a likelihood field: use matcher=likelihood")
+    scans, times, odom, step_scans = plan_steps(sequence, c)
+    n_steps = len(step_scans)
+    ms = c.map
+    min_r, max_r = range_limits(ms, sequence)
+
+    def points(i: int):
+        return scan_to_points(scans[i], sequence.body_height_m, min_r, max_r, ms.ground_threshold_m)
+
+    start = odom[step_scans[0]].copy()
+    submaps = Submaps(ms, s.submap_nodes, matcher.field_sigma_m, matcher.field_radius_m)
+    tracker = LocalSlam(matcher, ms, submaps, s.local_map, start)
+    graph = PoseGraph(start, GraphNoise(s.local_sigma_m, s.local_sigma_per_m, s.local_sigma_rad, s.local_sigma_per_rad,
+                                        s.loop_sigma_m, s.loop_sigma_rad, s.loss, s.loss_scale))
+    search = LoopSearch(SearchSettings(s.search_resolution_m, s.search_levels, s.min_score, s.min_refined_score,
+                                       s.ambiguity_ratio, s.ambiguity_m, s.ambiguity_rad, s.max_submaps_per_node),
+                        refine_step_m=ms.resolution_m, refine_levels=matcher.refine_levels + 1,
+                        sigma_m=s.loop_sigma_m, sigma_rad=s.loop_sigma_rad)
+    policy = WindowPolicy(s.window_m, s.window_per_m, s.window_max_m, s.window_yaw_rad, s.window_yaw_per_m)
+    verifier = ClosureVerifier(VerifySettings(s.trust_m, s.trust_rad, s.group_size, s.group_extent_m, s.group_span_m, s.consistency_m,
+                                              s.consistency_per_m, s.consistency_rad, s.consistency_rad_per_m))
+    causal = np.empty((n_steps, 3))
+    path_m = np.zeros(n_steps)  # path length (m) of the local trajectory at each node
+    candidates: list[LoopCandidate] = []
+    rows: dict[str, list] = {k: [] for k in ("step_time_s", "closures", "optimise_s")}
+    between = np.full((len(scans), 3), np.nan) if c.between == "match" else None
+
+    def project(a: int, b: int) -> ScanBatch:
+        return project_scans(scans, a, b, sequence.body_height_m, min_r, max_r, ms.ground_threshold_m)
+
+    between_scans = BetweenScans(step_scans, len(scans), project, lambda batch: batch)
+    tied = TiedSubmaps()
+    first_scan = None
+    t_loop = time.perf_counter()
+    for k, si in enumerate(step_scans):
+        t0 = time.perf_counter()
+        pts = points(si)
+        if k == 0:
+            first_scan = (points_to_world(pts.xy, start), points_to_world(pts.origin.reshape(1, 2), start)[0])
+        else:
+            motion = tracker.step(se2_between(odom[step_scans[k - 1]], odom[si]), pts)
+            path_m[k] = path_m[k - 1] + float(np.hypot(motion[0], motion[1]))
+            graph.add_node(motion)
+        for done in tracker.insert(k, pts):
+            tied.add_submap(done.anchor, path_m)
+        online = tracker.online
+        if between is not None:
+            js, batch = between_scans.of_step(k)
+            if len(js):
+                matched = tracker.match_online(se2_compose(online, se2_between(odom[si], odom[js])), batch)
+                between[js] = se2_between(online, matched)
+        new: list[LoopCandidate] = []
+        if submaps.finished and k % s.search_every == 0 and len(pts.xy):
+            new = _search_loops(k, pts, submaps, graph, search, policy, tied.drift(k, path_m), matcher)
+            candidates.extend(new)
+        accepted = verifier.offer(new, k, graph.poses, path_m, graph.active_ties)
+        opt_s = 0.0
+        for cand in accepted:
+            cand.loop_id = graph.add_loop(cand.anchor, cand.node, cand.relative, cand.covariance)
+            tied.add_closure(cand.node, cand.anchor, path_m)
+        far = any(not correction_fits(c, graph.poses, s.far_m, s.far_m * FAR_RAD_PER_M) for c in accepted)
+        if far:  # the first return of a long loop: the whole graph from LAGO
+            opt_s = _optimise(graph, candidates, s.prune_m, s.prune_rad, from_lago=True)
+        else:
+            graph.update()
+            if k % REFRESH_EVERY == 0:
+                t1 = time.perf_counter()
+                graph.refresh()
+                if _prune(graph, candidates, s.prune_m, s.prune_rad):
+                    graph.update()
+                    graph.refresh()
+                opt_s = time.perf_counter() - t1
+        if tracker.whole and _apart(graph.poses[k], tracker.online, s.redraw_m, s.redraw_rad):
+            # the graph moved the robot away from where the online map has it: draw that map again from the graph
+            t1 = time.perf_counter()
+            tracker.redraw([points(i) for i in step_scans[: k + 1]], graph.poses[: k + 1])
+            opt_s += time.perf_counter() - t1
+        causal[k] = tracker.online if tracker.whole else graph.poses[k]
+        rows["closures"].append(len(accepted))
+        rows["optimise_s"].append(opt_s)
+        rows["step_time_s"].append(time.perf_counter() - t0)
+        if progress is not None and progress(len(scans) if k == n_steps - 1 else int(si) + 1, len(scans)):
+            if k < n_steps - 1:
+                n_steps, step_scans = k + 1, step_scans[: k + 1]
+                causal, path_m = causal[:n_steps], path_m[:n_steps]
+                scans, times, odom = scans[: si + 1], times[: si + 1], odom[: si + 1]
+            break
+    verifier.flush()
+    graph.update()
+    final_s = _optimise(graph, candidates, s.prune_m, s.prune_rad, from_lago=False) if graph.loops else 0.0
+    runtime = time.perf_counter() - t_loop
+    smooth = graph.poses.copy()
+    final_map = _render_map(ms, [points(i) for i in step_scans], smooth)
+    if between is not None:
+        between = between[: len(odom)]
+    steps = Table({
+        "step": np.arange(n_steps),
+        "scan_index": np.array([scans[i].index for i in step_scans], dtype=np.int64),
+        "t": times[step_scans],
+        "neff": np.ones(n_steps),
+        "resampled": np.zeros(n_steps, dtype=bool),
+        "best_weight": np.ones(n_steps),
+        **{k: np.asarray(v) for k, v in rows.items()},
+    })
+    status = [cand.status for cand in candidates]
+    return SlamResult(
+        times=times,
+        trajectory=fill_between_steps(step_scans, smooth, odom, between),
+        causal=fill_between_steps(step_scans, causal, odom, between),
+        odometry=se2_compose(start, se2_between(odom[step_scans[0]], odom)),
+        log_odds=final_map,
+        steps=steps,
+        particles=1,
+        resample_count=0,
+        runtime_s=runtime,
+        fill="odometry" if between is None else "match",
+        first_scan_xy=None if first_scan is None else first_scan[0],
+        first_scan_origin=None if first_scan is None else first_scan[1],
+        extras={
+            "mode": c.mode,
+            "processed_steps": n_steps,
+            "step_scans": step_scans,
+            "neff_mean": 1.0,
+            "neff_min": 1.0,
+            "filter": f.name,
+            "matcher_map_reads": int(matcher.map_reads),
+            "map_mb": tracker.memory_mb(),
+            "map_peak_mb": submaps.peak_mb,
+            "graph": {
+                "nodes": int(graph.n),
+                "submaps": len(submaps.anchors),
+                "searches": int(search.searches),
+                "candidates": len(candidates),
+                "accepted": sum(st == ACCEPTED for st in status),
+                "rejected": sum(st != ACCEPTED for st in status),
+                "by_status": {st: status.count(st) for st in sorted(set(status))},
+                "optimisations": len(graph.optimisations),
+                "optimise_s": float(sum(o.seconds for o in graph.optimisations)),
+                "update_s": float(graph.update_seconds),
+                "redraws": int(tracker.redraws),
+                "final_optimise_s": final_s,
+                "search_s": float(search.seconds),
+            },
+            "loop_candidates": candidates,
+            "graph_poses": smooth,
+        },
+    )
+
+
+class TiedSubmaps:
+    """How far (m of path) node k is from each finished submap's anchor since the two were
+    last tied: the path between them, or through an accepted closure c (the path from c's
+    node to k plus the path between c's anchor and the submap's), whichever is shorter.
+    d_j(k) = path(k) + min(-path(anchor_j), min_c (|path(anchor_c) - path(anchor_j)| - path(node_c))),
+    whose second term does not depend on k: it is kept per submap and lowered as closures come."""
+
+    def __init__(self) -> None:
+        self.anchor_path = np.zeros(0)  # path (m) at each finished submap's anchor
+        self.best = np.zeros(0)  # min over the terms above but path(k)
+        self.closures: list[tuple[float, float]] = []  # (path at node, path at anchor) of each accepted closure
+
+    def add_submap(self, anchor: int, path_m: FloatArray) -> None:
+        pa = float(path_m[anchor])
+        b = -pa
+        if self.closures:
+            c = np.array(self.closures)
+            b = min(b, float(np.min(np.abs(c[:, 1] - pa) - c[:, 0])))
+        self.anchor_path = np.append(self.anchor_path, pa)
+        self.best = np.append(self.best, b)
+
+    def add_closure(self, node: int, anchor: int, path_m: FloatArray) -> None:
+        pn, pa = float(path_m[node]), float(path_m[anchor])
+        self.closures.append((pn, pa))
+        np.minimum(self.best, np.abs(pa - self.anchor_path) - pn, out=self.best)
+
+    def drift(self, k: int, path_m: FloatArray) -> FloatArray:
+        """(S,) the distance for node k to each finished submap (m)."""
+        return path_m[k] + self.best
+
+
+def _search_loops(k: int, scan: ScanPoints, submaps: Submaps, graph: PoseGraph, search: LoopSearch, policy: WindowPolicy,
+                  drift_m: FloatArray, matcher: LikelihoodFieldMatcher) -> list[LoopCandidate]:
+    """Node k's loop candidates in the finished submaps within their windows (`drift_m` (S,):
+    each submap's `TiedSubmaps` distance)."""
+    anchors = submaps.finished_anchor
+    poses = graph.poses
+    reach = search.submaps_in_reach(poses[k], submaps, poses[anchors], policy.at(drift_m))
+    return search.search(k, poses[k], matcher.fine_points(scan), scan.origin, reach, {int(a): poses[a] for a in anchors})
+
+
+def _apart(a: FloatArray, b: FloatArray, m: float, rad: float) -> bool:
+    """Whether poses a and b differ by more than m metres or rad radians."""
+    d = se2_between(a, b)
+    return bool(np.hypot(d[0], d[1]) > m or abs(d[2]) > rad)
+
+
+def _prune(graph: PoseGraph, candidates: list[LoopCandidate], prune_m: float, prune_rad: float) -> bool:
+    """Drop the closures the estimate leaves more than prune_m / prune_rad off (status
+    `pruned`); whether any was dropped."""
+    active = np.flatnonzero(graph.active)
+    dm, dr = graph.loop_residuals(active)
+    off = active[(dm > prune_m) | (dr > prune_rad)]
+    if len(off):
+        by_loop = {cand.loop_id: cand for cand in candidates if cand.loop_id >= 0}
+        for loop in off:
+            graph.drop_loop(int(loop))
+            by_loop[int(loop)].status = PRUNED
+    return bool(len(off))
+
+
+def _optimise(graph: PoseGraph, candidates: list[LoopCandidate], prune_m: float, prune_rad: float, from_lago: bool) -> float:
+    """The whole graph by Levenberg-Marquardt (from LAGO's estimate when `from_lago`); then
+    drop the closures the optimum leaves far off and optimise again while any were dropped
+    (at most three times). Returns the seconds spent."""
+    t0 = time.perf_counter()
+    graph.optimise_batch(from_lago=from_lago)
+    for _ in range(3):
+        if not _prune(graph, candidates, prune_m, prune_rad):
+            break
+        graph.optimise_batch(from_lago=False)
+    return time.perf_counter() - t0
+
+
+def _render_map(settings, scans_points, poses: FloatArray):
+    """The final map: every node's scan ray-cast from its pose into one log-odds grid."""
+    grid = OccupancyGrid(settings, (float(poses[0, 0]), float(poses[0, 1])))
+    for pts, pose in zip(scans_points, poses):
+        if len(pts.xy):
+            grid.insert(points_to_world(pts.origin.reshape(1, 2), pose)[0], points_to_world(pts.xy, pose))
+    return grid.to_image()

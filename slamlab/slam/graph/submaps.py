@@ -1,0 +1,172 @@
+"""Submaps: small occupancy grids built from a run of consecutive nodes (Hess et al. 2016).
+
+Local SLAM works in its own frame (the local frame, where the matched poses drift freely);
+a submap is a log-odds grid with its likelihood field in that frame, built from the scans of
+`submap_nodes` consecutive nodes. Two are active at once: a new submap starts every
+`submap_nodes / 2` nodes, every node goes into both active ones, and scans are matched against
+the older (fuller) one, so the robot is always inside a submap with at least half its scans.
+When a submap has all its nodes it is finished: its field is kept as one-byte codes over
+the cells it knows (a quarter of its float32 log-odds and field), and it becomes a target of
+the loop search.
+
+A submap is rigid: its global placement is that of its first node (its anchor) in the pose
+graph, G = X_anchor (+) inv(L_anchor), L the anchor's local pose. Re-placing submaps after an
+optimisation is therefore free: they follow their anchors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from slamlab.geometry import FloatArray
+from slamlab.slam.grid import MapSettings, OccupancyGrid
+from slamlab.slam.graph.branch_bound import SearchGrid
+from slamlab.slam.scan import ScanPoints, points_to_world
+
+FIELD_CODES = 255.0  # a finished submap's field value v in [0, 1] is kept as round(255 v)
+UNKNOWN, FREE, OCCUPIED = 0, 1, 2  # a finished submap's cell states (`state_u8`)
+
+
+@dataclass(slots=True)
+class FinishedSubmap:
+    """A finished submap, as the loop search reads it: the likelihood field as one-byte codes
+    (`field_u8`, [H, W], row = y) over its known cells, with its origin (m, local frame) and
+    cell size (m); `anchor` its first node and `anchor_local` that node's local pose; `nodes`
+    the nodes it holds; `center` / `radius` (m, local frame) a circle around its known cells."""
+
+    index: int
+    anchor: int
+    anchor_local: FloatArray
+    nodes: tuple[int, int]
+    field_u8: np.ndarray
+    state_u8: np.ndarray  # per cell: UNKNOWN, FREE or OCCUPIED (the log-odds' sign), as `field_u8`
+    origin: FloatArray
+    resolution_m: float
+    center: FloatArray
+    radius: float
+    _search: dict = field(default_factory=dict)  # search grids by (cell m, levels), made on first use
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.field_u8.nbytes + self.state_u8.nbytes + sum(g.nbytes for g in self._search.values()))
+
+    def field_float(self) -> np.ndarray:
+        """The field as float32 values in [0, 1] (for the refinement's hill climb)."""
+        return self.field_u8.astype(np.float32) * np.float32(1.0 / FIELD_CODES)
+
+    def search_grid(self, search_res_m: float, levels: int) -> SearchGrid:
+        """The branch-and-bound grid: the field max-pooled over blocks of whole cells to about
+        `search_res_m` (the largest value in each block: a point the search places in a block
+        scores what its best spot in the block would), with its `levels` precomputed grids.
+        Made once and kept."""
+        f = max(int(round(search_res_m / self.resolution_m)), 1)
+        key = (f, int(levels))
+        if key not in self._search:
+            H, W = self.field_u8.shape
+            Hc, Wc = -(-H // f), -(-W // f)
+            padded = np.zeros((Hc * f, Wc * f), dtype=np.uint8)
+            padded[:H, :W] = self.field_u8
+            coarse = padded.reshape(Hc, f, Wc, f).max(axis=(1, 3))
+            self._search[key] = SearchGrid.of(coarse, (float(self.origin[0]), float(self.origin[1])), f * self.resolution_m, levels)
+        return self._search[key]
+
+    def drop_search_grids(self) -> None:
+        self._search.clear()
+
+
+@dataclass(slots=True)
+class ActiveSubmap:
+    """A submap still taking scans: its grid (local frame) and the nodes inserted so far."""
+
+    index: int
+    anchor: int
+    anchor_local: FloatArray
+    grid: OccupancyGrid
+    count: int = 0
+
+
+class Submaps:
+    """The active submaps and the finished ones (see module doc)."""
+
+    def __init__(self, settings: MapSettings, nodes_per_submap: int, field_sigma_m: float, field_radius_m: float) -> None:
+        self.settings = settings
+        self.n = int(nodes_per_submap)
+        self.sigma = field_sigma_m
+        self.radius = field_radius_m
+        self.active: list[ActiveSubmap] = []
+        self.finished: list[FinishedSubmap] = []
+        self.anchors: list[int] = []  # submap index -> anchor node
+        self.peak_mb = 0.0
+        self._settings: MapSettings | None = None
+        # the finished submaps' anchors (S,), anchor local poses (S, 3), centres (S, 2) and radii (S,)
+        self.finished_anchor = np.zeros(0, dtype=np.int64)
+        self.finished_anchor_local = np.zeros((0, 3))
+        self.finished_center = np.zeros((0, 2))
+        self.finished_radius = np.zeros(0)
+
+    def matching(self) -> ActiveSubmap:
+        """The submap scans are matched against: the oldest active one."""
+        return self.active[0]
+
+    def insert(self, node: int, local_pose: FloatArray, scan: ScanPoints) -> list[FinishedSubmap]:
+        """Add node `node`'s scan, seen from `local_pose`, to the active submaps (starting a
+        new one when due); returns the submaps this finished."""
+        if not self.active or self.active[-1].count >= max(self.n // 2, 1):
+            index = len(self.anchors)
+            grid = OccupancyGrid(self._submap_settings(), (float(local_pose[0]), float(local_pose[1])), self.sigma, self.radius)
+            self.active.append(ActiveSubmap(index, node, np.asarray(local_pose, dtype=np.float64).copy(), grid))
+            self.anchors.append(node)
+        if len(scan.xy):
+            sensor = points_to_world(scan.origin.reshape(1, 2), local_pose)[0]
+            world = points_to_world(scan.xy, local_pose)
+            for s in self.active:
+                s.grid.insert(sensor, world)
+        for s in self.active:
+            s.count += 1
+        done = []
+        while self.active and self.active[0].count >= self.n:
+            done.append(self._finish(self.active.pop(0), node))
+        self.peak_mb = max(self.peak_mb, self.memory_mb())
+        return done
+
+    def _submap_settings(self) -> MapSettings:
+        """The map settings for a submap: a small start that the first scan grows to its own
+        extent, and a few metres of margin whenever it grows (a submap sees a few metres of
+        travel; a run's map settings are sized for the whole building)."""
+        if self._settings is None:
+            self._settings = replace(self.settings, initial_size_m=1.0, growth_margin_m=min(self.settings.growth_margin_m, 4.0))
+        return self._settings
+
+    def _finish(self, s: ActiveSubmap, last_node: int) -> FinishedSubmap:
+        g = s.grid
+        assert g.field is not None
+        known = np.flatnonzero(g.log_odds.any(axis=1)), np.flatnonzero(g.log_odds.any(axis=0))
+        R = int(g.kernel.shape[0] // 2) if g.kernel is not None else 0
+        H, W = g.shape
+        if len(known[0]):
+            r0, r1 = max(int(known[0][0]) - R, 0), min(int(known[0][-1]) + R + 1, H)
+            c0, c1 = max(int(known[1][0]) - R, 0), min(int(known[1][-1]) + R + 1, W)
+        else:
+            r0, r1, c0, c1 = 0, 1, 0, 1
+        codes = np.rint(g.field[r0:r1, c0:c1] * FIELD_CODES).astype(np.uint8)
+        lo = g.log_odds[r0:r1, c0:c1]
+        state = np.where(lo > g.s.occupied_threshold, OCCUPIED, np.where(lo < 0, FREE, UNKNOWN)).astype(np.uint8)
+        origin = g.origin + np.array([c0, r0]) * g.res
+        size = np.array([c1 - c0, r1 - r0]) * g.res
+        f = FinishedSubmap(
+            index=s.index, anchor=s.anchor, anchor_local=s.anchor_local, nodes=(s.anchor, last_node),
+            field_u8=np.ascontiguousarray(codes), state_u8=np.ascontiguousarray(state), origin=origin, resolution_m=g.res,
+            center=origin + size / 2, radius=float(np.hypot(*size) / 2),
+        )
+        self.finished.append(f)
+        self.finished_anchor = np.append(self.finished_anchor, f.anchor)
+        self.finished_anchor_local = np.vstack([self.finished_anchor_local, f.anchor_local])
+        self.finished_center = np.vstack([self.finished_center, f.center])
+        self.finished_radius = np.append(self.finished_radius, f.radius)
+        return f
+
+    def memory_mb(self) -> float:
+        active = sum(s.grid.log_odds.nbytes + (s.grid.field.nbytes if s.grid.field is not None else 0) for s in self.active)
+        return (active + sum(f.nbytes for f in self.finished)) / 1e6
