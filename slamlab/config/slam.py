@@ -324,11 +324,11 @@ class GraphFilterConfig:
     # ---- loop search (branch and bound on the finished submaps)
     search_resolution_m: float = 0.1  # cell of the search grid (rounded to a whole number of map cells)
     search_levels: int = 6  # branch-and-bound levels: the top node covers 2^(levels-1) cells a side
-    search_every: int = 1  # search for loops from every k-th node
-    window_m: float = 1.0  # +- x and y searched around the current estimate right after a closure (m) ...
+    search_every: int = 2  # search for loops from every k-th node
+    window_m: float = 0.5  # +- x and y searched around the current estimate right after a closure (m) ...
     window_per_m: float = 0.1  # ... growing by this per metre travelled since the last accepted closure
     window_max_m: float = 60.0  # ... up to this (m)
-    window_yaw_rad: float = 0.2  # +- yaw right after a closure (rad) ...
+    window_yaw_rad: float = 0.05  # +- yaw right after a closure (rad) ...
     window_yaw_per_m: float = 0.01  # ... growing per metre travelled (rad/m), to a full turn
     min_score: float = 0.55  # branch-and-bound score a candidate must reach (mean search-grid value, 0..1)
     min_refined_score: float = 0.5  # mean field value at the refined pose (0..1)

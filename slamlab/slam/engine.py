@@ -93,11 +93,11 @@ def run_slam(
     # six alternated pairs: faster in five, by 0.6-1.7 s of 8-10 s (slower by 0.3 s in one);
     # ACES and the default sim run within their noise. OpenMP splits the loop in fixed blocks
     # whatever this says. Results do not depend on it.
-    if c.mode == "slam" and c.filter.family == "graph":  # one trajectory, its own loop
-        from slamlab.slam.graph.run import run_graph
-
-        return run_graph(sequence, c, progress)
     with numba.parallel_chunksize(1):
+        if c.mode == "slam" and c.filter.family == "graph":  # one trajectory, its own loop
+            from slamlab.slam.graph.run import run_graph
+
+            return run_graph(sequence, c, progress)
         return _run_filter(sequence, c, progress)
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
 from slamlab.config.slam import MapConfig
-from slamlab.slam.raycast import field_radius_cells, gaussian_kernel, raycast_update, update_field
+from slamlab.slam.raycast import field_radius_cells, gaussian_kernel, raise_field, raycast_update, raycast_update_noting, update_field
 
 # The `map/` config group's schema is the settings object the grid reads: resolution_m,
 # log-odds (occupied > 0, free < 0, clamp bounds), occupied_threshold, ground_threshold_m,
@@ -51,6 +51,7 @@ class OccupancyGrid:
             self.kernel = gaussian_kernel(field_sigma_m / self.res, radius)
             self.field = np.zeros((n, n), dtype=np.float32)
         self.grow_count = 0
+        self._flips = np.empty((0, 2), dtype=np.int64)  # scratch for `insert`: the cells a scan changed
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -109,20 +110,36 @@ class OccupancyGrid:
         self.ensure(xs.min(), ys.min(), xs.max(), ys.max())
         rows, cols = self.cells(points_xy)
         sr, sc = self.cells(np.asarray(sensor_xy, dtype=np.float64).reshape(1, 2))
-        flip = np.array([np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1], dtype=np.int64)
         s = self.s
-        raycast_update(
-            self.log_odds, int(sr[0]), int(sc[0]), rows, cols,
-            np.float32(s.log_odds_occupied), np.float32(s.log_odds_free),
-            np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold), flip,
-        )
-        if self.field is not None and flip[1] >= 0:
-            R = self.kernel.shape[0] // 2  # type: ignore[union-attr]
-            H, W = self.shape
-            update_field(
-                self.log_odds, self.field, np.float32(s.occupied_threshold), self.kernel,
-                max(flip[0] - R, 0), min(flip[1] + R + 1, H), max(flip[2] - R, 0), min(flip[3] + R + 1, W),
-            )
+        args = (self.log_odds, int(sr[0]), int(sc[0]), rows, cols, np.float32(s.log_odds_occupied), np.float32(s.log_odds_free),
+                np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold))
+        if self.field is None:
+            raycast_update(*args, np.array([np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1], dtype=np.int64))
+            return
+        flips = self._flips if len(self._flips) >= 4 * len(rows) + 64 else np.empty((4 * len(rows) + 64, 2), dtype=np.int64)
+        self._flips = flips
+        n_free, n_occ = raycast_update_noting(*args, flips)
+        if n_free + n_occ > len(flips):  # more changes than room: the field again over their box, as before
+            self._refresh_field(self.field, 0, self.shape[0], 0, self.shape[1])
+            return
+        self._update_field(flips[:n_free], flips[n_free:n_free + n_occ])
+
+    def _update_field(self, freed: np.ndarray, occupied: np.ndarray) -> None:
+        """The field after cells turned free (`freed`) and occupied (`occupied`), (K, 2) rows
+        and cols: around freed cells it is recomputed (a wall value there may have gone), then
+        it is raised around the new walls. The same values as recomputing the box of every
+        changed cell, which is what this replaced (tested), in a fraction of the reads."""
+        R = self.kernel.shape[0] // 2  # type: ignore[union-attr]
+        H, W = self.shape
+        if len(freed):
+            r0, c0 = freed.min(axis=0)
+            r1, c1 = freed.max(axis=0)
+            self._refresh_field(self.field, max(r0 - R, 0), min(r1 + R + 1, H), max(c0 - R, 0), min(c1 + R + 1, W))
+        if len(occupied):
+            raise_field(self.field, self.kernel, occupied)
+
+    def _refresh_field(self, field: np.ndarray, r0: int, r1: int, c0: int, c1: int) -> None:
+        update_field(self.log_odds, field, np.float32(self.s.occupied_threshold), self.kernel, r0, r1, c0, c1)
 
     def occupied(self) -> np.ndarray:
         """bool [H, W]: cells whose log-odds exceed the occupied threshold."""

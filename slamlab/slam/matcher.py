@@ -150,6 +150,13 @@ def _field_search_one(field, ox, oy, inv_res, px, py, pt, coarse_pts, fine_pts, 
         return refine_pose(
             field, NO_POOL, NO_TABLE, NO_LUT, lut_d, sigma_cells, ox, oy, inv_res, px, py, pt, bx, by, bt, fine_pts, kxy, kyaw, w_scale, 2.0 * lin_step, 2.0 * ang_step,
         )
+    return _climb(field, ox, oy, inv_res, px, py, pt, bx, by, bt, fine_pts, lin_step, ang_step, levels, kxy, kyaw, ext)
+
+
+@numba.njit(cache=True, inline="always")
+def _climb(field, ox, oy, inv_res, px, py, pt, bx, by, bt, fine_pts, lin_step, ang_step, levels, kxy, kyaw, ext):
+    """The hill climb of `field_search` from (bx, by, bt), prior centred on (px, py, pt): the
+    best pose, its fine score and the number of fine scores computed."""
     cur = _score_fine(field, ox, oy, inv_res, bx, by, bt, fine_pts, ext)
     n_eval = 1
     cur -= kxy * ((bx - px) ** 2 + (by - py) ** 2) + kyaw * (bt - pt) ** 2
@@ -227,17 +234,81 @@ def field_search(field, ox, oy, inv_res, poses, coarse_pts, fine_pts, offsets, l
 
 
 @numba.njit(cache=True)
-def field_search_scans(field, ox, oy, inv_res, poses, coarse_pts, coarse_ends, fine_pts, fine_ends, offsets, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals):
+def coarse_by_cells(field, ox, oy, inv_res, px, py, pt, pts, shifts, yaws, score):
+    """The coarse grid's field sums on a dense field when its x/y offsets are whole cells:
+    `score` (yaws, rows, cols) over the bounding box of `shifts` ((K, 3): row, col, yaw index;
+    offset k's sum lands at [shifts[k, 2], shifts[k, 0] - min row, shifts[k, 1] - min col]).
+    For each yaw the points are placed once; every shift's bilinear value reuses the
+    placement's cell and weights, a whole number of cells further on (the tiled maps'
+    `tiled_match.coarse_scores_by_cells`, on one dense array)."""
+    H, W = field.shape
+    r_lo = shifts[:, 0].min()
+    c_lo = shifts[:, 1].min()
+    ny = score.shape[1]
+    nx = score.shape[2]
+    score[:] = 0.0
+    for a in range(yaws.shape[0]):
+        c = math.cos(pt + yaws[a])
+        s = math.sin(pt + yaws[a])
+        for i in range(pts.shape[0]):
+            _, _, u, v = field_place(px, py, c, s, pts[i, 0], pts[i, 1], ox, oy, inv_res)
+            cb = int(math.floor(u))
+            rb = int(math.floor(v))
+            fu = u - cb
+            fv = v - rb
+            r0 = rb + r_lo
+            c0 = cb + c_lo
+            if r0 >= 0 and c0 >= 0 and r0 + ny + 1 <= H and c0 + nx + 1 <= W:
+                for dr in range(ny):
+                    row0 = field[r0 + dr]
+                    row1 = field[r0 + dr + 1]
+                    for dc in range(nx):
+                        score[a, dr, dc] += (1.0 - fv) * ((1.0 - fu) * row0[c0 + dc] + fu * row0[c0 + dc + 1]) + fv * (
+                            (1.0 - fu) * row1[c0 + dc] + fu * row1[c0 + dc + 1])
+            else:
+                for dr in range(ny):
+                    for dc in range(nx):
+                        score[a, dr, dc] += _field_at(field, H, W, u + dc + c_lo, v + dr + r_lo)
+
+
+@numba.njit(cache=True, parallel=True)
+def field_search_scans(field, ox, oy, inv_res, poses, coarse_pts, coarse_ends, fine_pts, fine_ends, offsets, shifts, yaws, lin_step, ang_step, levels, kxy, kyaw, out_poses, out_scores, out_evals):
     """`field_search` for several scans on one map, serially: pose i searched with its own
     points, rows coarse_ends[i]:coarse_ends[i + 1] of `coarse_pts` and fine_ends[i]:
-    fine_ends[i + 1] of `fine_pts` (hill climb; no stretches). Each result is what
-    `field_search` gives that scan alone. Serial: a single search is too short to hand to a
-    thread (the graph filter's local matches and its scans between steps)."""
-    for i in range(poses.shape[0]):
-        bx, by, bt, cur, n_eval = _field_search_one(
-            field, ox, oy, inv_res, poses[i, 0], poses[i, 1], poses[i, 2], coarse_pts[coarse_ends[i]:coarse_ends[i + 1]],
-            fine_pts[fine_ends[i]:fine_ends[i + 1]], offsets, lin_step, ang_step, levels, kxy, kyaw, _NO_EXT_ROWS, _CLIMB, 0.0, 0.0,
-        )
+    fine_ends[i + 1] of `fine_pts` (hill climb; no stretches). With whole-cell offsets
+    (`shifts` / `yaws` from `cell_shifts`, else empty) the coarse grid is scored by
+    `coarse_by_cells` (the same sums up to the last bits of the placement); the best offset
+    is the first (smallest) of the highest scores less the prior, as in `field_search`.
+    Scans run on all cores, one at a time to a thread; each result is its own (the graph
+    filter's local matches and its scans between steps)."""
+    by_cells = shifts.shape[0] == offsets.shape[0] and offsets.shape[0] > 1
+    r_lo = shifts[:, 0].min() if by_cells else 0
+    c_lo = shifts[:, 1].min() if by_cells else 0
+    ny = shifts[:, 0].max() - r_lo + 1 if by_cells else 0
+    nx = shifts[:, 1].max() - c_lo + 1 if by_cells else 0
+    for i in numba.prange(poses.shape[0]):
+        score = np.empty((yaws.shape[0] if by_cells else 0, ny, nx))
+        px = poses[i, 0]
+        py = poses[i, 1]
+        pt = poses[i, 2]
+        fine = fine_pts[fine_ends[i]:fine_ends[i + 1]]
+        if by_cells:
+            coarse_by_cells(field, ox, oy, inv_res, px, py, pt, coarse_pts[coarse_ends[i]:coarse_ends[i + 1]], shifts, yaws, score)
+            best = -1e300
+            bk = 0
+            for k in range(offsets.shape[0]):
+                sc = score[shifts[k, 2], shifts[k, 0] - r_lo, shifts[k, 1] - c_lo]
+                sc -= kxy * (offsets[k, 0] ** 2 + offsets[k, 1] ** 2) + kyaw * offsets[k, 2] ** 2
+                if sc > best:
+                    best = sc
+                    bk = k
+            bx, by, bt, cur, n_eval = _climb(field, ox, oy, inv_res, px, py, pt, px + offsets[bk, 0], py + offsets[bk, 1], pt + offsets[bk, 2],
+                                             fine, lin_step, ang_step, levels, kxy, kyaw, _NO_EXT_ROWS)
+        else:
+            bx, by, bt, cur, n_eval = _field_search_one(
+                field, ox, oy, inv_res, px, py, pt, coarse_pts[coarse_ends[i]:coarse_ends[i + 1]], fine, offsets,
+                lin_step, ang_step, levels, kxy, kyaw, _NO_EXT_ROWS, _CLIMB, 0.0, 0.0,
+            )
         out_poses[i, 0] = bx
         out_poses[i, 1] = by
         out_poses[i, 2] = bt
@@ -651,12 +722,13 @@ class LikelihoodFieldMatcher(Matcher):
         best = np.empty((n, 3))
         scores = np.empty(n)
         evals = np.empty(n, dtype=np.int64)
+        shifts, _, yaws = self._cell_shifts(grid.res)
         field_search_scans(
             grid.field, grid.origin[0], grid.origin[1], 1.0 / grid.res, np.ascontiguousarray(poses, dtype=np.float64),
-            pts.coarse, pts.coarse_ends, pts.fine, pts.fine_ends, self.offsets, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5,
+            pts.coarse, pts.coarse_ends, pts.fine, pts.fine_ends, self.offsets, shifts, yaws, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5,
             self.refine_levels, self.kxy, self.kyaw, best, scores, evals,
         )
-        self.map_reads += len(pts.coarse) * 4 * len(self.offsets) * (len(self.offsets) > 1) + 4 * int((evals * pts.samples).sum())
+        self.map_reads += len(pts.coarse) * self._coarse_reads_per_point(grid.res) + 4 * int((evals * pts.samples).sum())
         return self._finish(np.asarray(poses, dtype=np.float64), best, scores)
 
     def match_each(self, maps: TiledMaps, poses: FloatArray, scan: ScanPoints, prior_scale: float = 1.0,

@@ -100,6 +100,63 @@ def raycast_update(lo, r0, c0, rows, cols, l_occ, l_free, lmin, lmax, thresh, fl
         _add(lo, rows[k], cols[k], l_occ, lmin, lmax, thresh, flip)
 
 
+@numba.njit(cache=True, inline="always")
+def _add_noting(lo, r, c, delta, lmin, lmax, thresh, flips, n):
+    """`_add`, appending the cell to `flips` (K, 2: row, col) when its occupied state changes
+    (while there is room; `n` counts every change, so n > K says some were not kept)."""
+    old = lo[r, c]
+    new = old + delta
+    if new < lmin:
+        new = lmin
+    elif new > lmax:
+        new = lmax
+    lo[r, c] = new
+    if (old > thresh) != (new > thresh):
+        if n < flips.shape[0]:
+            flips[n, 0] = r
+            flips[n, 1] = c
+        n += 1
+    return n
+
+
+@numba.njit(cache=True)
+def raycast_update_noting(lo, r0, c0, rows, cols, l_occ, l_free, lmin, lmax, thresh, flips):
+    """`raycast_update` (the same cells, the same order, the same values), listing the cells
+    whose occupied state changed in `flips` (K, 2) instead of their bounding box: those
+    that turned free first, then those that turned occupied. Returns (turned free, turned
+    occupied) counts; a count larger than the room left says the list is incomplete."""
+    n_free = 0
+    for k in range(rows.shape[0]):
+        dr, dc, sr, sc, err, major_c, n = line_start(r0, c0, rows[k], cols[k])
+        r = r0
+        c = c0
+        for _ in range(n):
+            n_free = _add_noting(lo, r, c, l_free, lmin, lmax, thresh, flips, n_free)
+            r, c, err = line_step(r, c, err, dr, dc, sr, sc, major_c)
+    kept = min(n_free, flips.shape[0])
+    n_occ = 0
+    rest = flips[kept:]
+    for k in range(rows.shape[0]):
+        n_occ = _add_noting(lo, rows[k], cols[k], l_occ, lmin, lmax, thresh, rest, n_occ)
+    return n_free, n_occ
+
+
+@numba.njit(cache=True)
+def raise_field(field, kernel, cells):
+    """Raise the field to the kernel centred on each cell of `cells` (K, 2: row, col): what a
+    cell turning occupied adds to the field (values only rise, so the order does not matter)."""
+    H, W = field.shape
+    R = kernel.shape[0] // 2
+    for i in range(cells.shape[0]):
+        r = cells[i, 0]
+        c = cells[i, 1]
+        for rr in range(max(r - R, 0), min(r + R + 1, H)):
+            for cc in range(max(c - R, 0), min(c + R + 1, W)):
+                v = kernel[rr - r + R, cc - c + R]
+                if v > field[rr, cc]:
+                    field[rr, cc] = v
+
+
 @numba.njit(cache=True)
 def update_field(lo, field, thresh, kernel, r0, r1, c0, c1):
     """Recompute the likelihood field `field` (float32 [H, W]) in rows [r0, r1), cols

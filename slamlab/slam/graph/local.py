@@ -11,7 +11,9 @@ motion prior) moves it to where the scan fits the local map (`filter.local_map`)
 - `submap`: the older of the two active submaps (Cartographer's local SLAM); the online pose
   is then the graph's estimate of the newest node.
 The matched motion between consecutive nodes is the pose graph's local edge, and the chain
-of those motions (the local frame, never redrawn) is where the submaps are built.
+of those motions (the local frame, never redrawn) is where the submaps are built. With
+`motion.scale_gain_per_m` > 0 the odometry's translation is scaled by a scale learnt from the
+matches, as each particle of the particle filters learns its own (`slam.odometry_scale`).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from slamlab.geometry import FloatArray, se2_between, se2_compose
 from slamlab.slam.graph.submaps import FinishedSubmap, Submaps
 from slamlab.slam.grid import MapSettings, OccupancyGrid
 from slamlab.slam.matcher import LikelihoodFieldMatcher, MatchPoints
+from slamlab.slam.odometry_scale import learn_scales, scaled_start
 from slamlab.slam.scan import ScanBatch, ScanPoints, points_to_world
 
 
@@ -31,8 +34,10 @@ class LocalSlam:
     """The chain poses, the submaps and (local_map=map) the online map (see module doc)."""
 
     def __init__(self, matcher: LikelihoodFieldMatcher, settings: MapSettings, submaps: Submaps, local_map: str,
-                 start: FloatArray) -> None:
+                 start: FloatArray, scale_gain_per_m: float = 0.0) -> None:
         self.matcher = matcher
+        self.scale_gain_per_m = float(scale_gain_per_m)  # `motion.scale_gain_per_m`: 0 = the odometry as it is
+        self.scale = np.ones(1)  # the learnt odometry scale (`slam.odometry_scale`)
         self.settings = settings
         self.submaps = submaps
         self.grid = self._new_grid((float(start[0]), float(start[1]))) if local_map == "map" else None
@@ -56,17 +61,21 @@ class LocalSlam:
         matched against the online map (local_map=map) or the older active submap
         (local_map=submap); the chain pose (the submaps' frame) follows by the same motion.
         Returns that motion: the pose graph's local edge."""
+        start = self.online if self.grid is not None else self.chain
+        if self.scale_gain_per_m > 0:  # the learnt odometry scale, as the particle filters learn theirs
+            start = scaled_start(start.reshape(1, 3), self.scale, odometry_increment)[0]
+        predicted = se2_compose(start, odometry_increment)
+        grid = self.grid if self.grid is not None else (self.submaps.matching().grid if self.submaps.active else None)
+        matched = self._match(grid, predicted, scan) if grid is not None and len(scan.xy) else predicted
+        before = self.online if self.grid is not None else self.chain
+        if self.scale_gain_per_m > 0 and grid is not None and len(scan.xy):
+            self.scale = learn_scales(self.scale, before.reshape(1, 3), matched.reshape(1, 3), odometry_increment, self.scale_gain_per_m)
+        motion = se2_between(before, matched)
         if self.grid is not None:
-            predicted = se2_compose(self.online, odometry_increment)
-            online = self._match(self.grid, predicted, scan) if len(scan.xy) else predicted
-            motion = se2_between(self.online, online)
-            self.online = online
+            self.online = matched
             self.chain = se2_compose(self.chain, motion)
-            return motion
-        predicted = se2_compose(self.chain, odometry_increment)
-        chain = self._match(self.submaps.matching().grid, predicted, scan) if len(scan.xy) and self.submaps.active else predicted
-        motion = se2_between(self.chain, chain)
-        self.chain = self.online = chain
+        else:
+            self.chain = self.online = matched
         return motion
 
     def match_online(self, predicted: FloatArray, scans: ScanBatch | MatchPoints) -> FloatArray:

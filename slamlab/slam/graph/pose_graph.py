@@ -79,6 +79,7 @@ class PoseGraph:
         self.chain: list[tuple[FloatArray, FloatArray]] = []  # (relative pose, sigmas) of node k from k-1, k >= 1
         self.loops: list[tuple[int, int, FloatArray]] = []  # (anchor node, node, relative pose)
         self.loop_cov: list[FloatArray] = []  # each closure's covariance
+        self._ties: np.ndarray | None = None  # `active_ties`, made when first asked for after a change
         self.active: list[bool] = []
         self._prior_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
         self._loss = {"cauchy": gtsam.noiseModel.mEstimator.Cauchy, "huber": gtsam.noiseModel.mEstimator.Huber}.get(noise.loss)
@@ -113,7 +114,9 @@ class PoseGraph:
     @property
     def active_ties(self) -> np.ndarray:
         """(T, 2) int: (anchor, node) of every closure in the graph."""
-        return np.array([(a, i) for (a, i, _), on in zip(self.loops, self.active) if on], dtype=np.int64).reshape(-1, 2)
+        if self._ties is None:
+            self._ties = np.array([(a, i) for (a, i, _), on in zip(self.loops, self.active) if on], dtype=np.int64).reshape(-1, 2)
+        return self._ties
 
     def chain_sigma(self, node: int) -> FloatArray:
         """(3,) the sigmas of the local edge into `node` (node >= 1)."""
@@ -128,6 +131,7 @@ class PoseGraph:
         self.loops.append((int(anchor), int(node), np.asarray(relative, dtype=np.float64).copy()))
         self.loop_cov.append(np.asarray(covariance, dtype=np.float64).copy())
         self.active.append(True)
+        self._ties = None
         loop = len(self.loops) - 1
         self._pending.append((True, loop))
         return loop
@@ -137,6 +141,7 @@ class PoseGraph:
         if not self.active[loop]:
             return
         self.active[loop] = False
+        self._ties = None
         if loop in self._slot:
             self._removals.append(self._slot.pop(loop))
         else:  # not in ISAM2 yet

@@ -75,7 +75,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
 
     start = odom[step_scans[0]].copy()
     submaps = Submaps(ms, s.submap_nodes, matcher.field_sigma_m, matcher.field_radius_m)
-    tracker = LocalSlam(matcher, ms, submaps, s.local_map, start)
+    tracker = LocalSlam(matcher, ms, submaps, s.local_map, start, c.motion.scale_gain_per_m)
     graph = PoseGraph(start, GraphNoise(s.local_sigma_m, s.local_sigma_per_m, s.local_sigma_rad, s.local_sigma_per_rad,
                                         s.loop_sigma_m, s.loop_sigma_rad, s.loss, s.loss_scale))
     search = LoopSearch(SearchSettings(s.search_resolution_m, s.search_levels, s.min_score, s.min_refined_score,
@@ -113,7 +113,9 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
         if between is not None:
             js, batch = between_scans.of_step(k)
             if len(js):
-                matched = tracker.match_online(se2_compose(online, se2_between(odom[si], odom[js])), batch)
+                since = se2_between(odom[si], odom[js])
+                since[:, :2] *= tracker.scale[0]  # the learnt odometry scale (1 when none is learnt)
+                matched = tracker.match_online(se2_compose(online, since), batch)
                 between[js] = se2_between(online, matched)
         new: list[LoopCandidate] = []
         if submaps.finished and k % s.search_every == 0 and len(pts.xy):

@@ -9,6 +9,9 @@ When a submap has all its nodes it is finished: its field is kept as one-byte co
 the cells it knows (a quarter of its float32 log-odds and field), and it becomes a target of
 the loop search.
 
+(With `overlap` off, one is active at a time: when local SLAM matches against a map of
+everything, the submaps are only the loop search's targets, and half the insertions do.)
+
 A submap is rigid: its global placement is that of its first node (its anchor) in the pose
 graph, G = X_anchor (+) inv(L_anchor), L the anchor's local pose. Re-placing submaps after an
 optimisation is therefore free: they follow their anchors.
@@ -90,9 +93,12 @@ class ActiveSubmap:
 class Submaps:
     """The active submaps and the finished ones (see module doc)."""
 
-    def __init__(self, settings: MapSettings, nodes_per_submap: int, field_sigma_m: float, field_radius_m: float) -> None:
+    def __init__(self, settings: MapSettings, nodes_per_submap: int, field_sigma_m: float, field_radius_m: float, overlap: bool = True) -> None:
         self.settings = settings
         self.n = int(nodes_per_submap)
+        # two active at once (a new one every n / 2 nodes), or one (a new one every n nodes: when
+        # no scan is matched against them, they are only the loop search's targets)
+        self.start_every = max(self.n // 2, 1) if overlap else self.n
         self.sigma = field_sigma_m
         self.radius = field_radius_m
         self.active: list[ActiveSubmap] = []
@@ -113,7 +119,7 @@ class Submaps:
     def insert(self, node: int, local_pose: FloatArray, scan: ScanPoints) -> list[FinishedSubmap]:
         """Add node `node`'s scan, seen from `local_pose`, to the active submaps (starting a
         new one when due); returns the submaps this finished."""
-        if not self.active or self.active[-1].count >= max(self.n // 2, 1):
+        if not self.active or self.active[-1].count >= self.start_every:
             index = len(self.anchors)
             grid = OccupancyGrid(self._submap_settings(), (float(local_pose[0]), float(local_pose[1])), self.sigma, self.radius)
             self.active.append(ActiveSubmap(index, node, np.asarray(local_pose, dtype=np.float64).copy(), grid))

@@ -160,6 +160,7 @@ class ClosureVerifier:
         `group_span_m` without a group are marked `inconsistent`."""
         s = self.s
         accepted = []
+        changed = False  # a group can only form when the waiting set changed
         for c in candidates:
             if c.status != PENDING:
                 continue
@@ -168,6 +169,7 @@ class ClosureVerifier:
                 accepted.append(c)
             else:
                 self.pending.append(c)
+                changed = True
         keep = []
         for c in self.pending:
             if path_m[node] - path_m[c.node] > s.group_span_m:
@@ -175,7 +177,7 @@ class ClosureVerifier:
             else:
                 keep.append(c)
         self.pending = keep
-        if len({c.node for c in self.pending}) >= s.group_size:
+        if changed and len({c.node for c in self.pending}) >= s.group_size:
             group = [self.pending[v] for v in max_clique(consistency_matrix(self.pending, poses, path_m, s, ties))]
             spread = np.ptp([path_m[c.node] for c in group]) if group else 0.0
             if len({c.node for c in group}) >= s.group_size and spread >= s.group_extent_m:
