@@ -340,6 +340,7 @@ class GraphFilterConfig:
     # consistent ones
     trust_m: float = 0.1  # a closure asking for a correction within this (m) ...
     trust_rad: float = 0.02  # ... and this in yaw (rad), as a 99 % gate where the match pins the pose, enters alone
+    loop_min_path_m: float = 30.0  # a larger correction comes only from a submap not tied to the robot for this long (m of path)
     far_m: float = 1.0  # accepted closures this far (m) from the estimate: optimise the whole graph from LAGO at once
     group_size: int = 3  # closures from a wider window enter in pairwise-consistent groups of at least this many
     group_extent_m: float = 8.0  # ... whose nodes spread over at least this much of the path (m)
@@ -353,6 +354,7 @@ class GraphFilterConfig:
     local_sigma_per_m: float = 0.02
     local_sigma_rad: float = 0.005  # ... and in yaw: this + per_rad x |turn| (rad)
     local_sigma_per_rad: float = 0.02
+    local_slip_per_m: float = 0.1  # ... plus, where the match pinned nothing (a bare corridor), up to this share of the step
     loop_sigma_m: float = 0.03  # a loop closure's sigma in x, y (m) and yaw (rad)
     loop_sigma_rad: float = 0.01
     loss: str = "cauchy"  # robust loss on loop closures: cauchy | huber | none
@@ -371,8 +373,8 @@ class GraphFilterConfig:
         for name in ("search_resolution_m", "window_max_m", "ambiguity_m", "ambiguity_rad", "loop_sigma_m", "loop_sigma_rad", "trust_m", "trust_rad", "far_m", "redraw_m", "redraw_rad",
                      "local_sigma_m", "local_sigma_rad", "loss_scale", "prune_m", "prune_rad", "consistency_m", "consistency_rad"):
             require_positive(g, name, getattr(self, name))
-        for name in ("window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "group_extent_m", "group_span_m",
-                     "consistency_per_m", "consistency_rad_per_m", "local_sigma_per_m", "local_sigma_per_rad"):
+        for name in ("window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "loop_min_path_m", "group_extent_m", "group_span_m",
+                     "consistency_per_m", "consistency_rad_per_m", "local_sigma_per_m", "local_sigma_per_rad", "local_slip_per_m"):
             require_nonnegative(g, name, getattr(self, name))
         for name in ("min_score", "min_refined_score", "ambiguity_ratio"):
             require_fraction(g, name, getattr(self, name))

@@ -23,6 +23,7 @@ from collections.abc import Sequence as SequenceABC
 import numpy as np
 
 from slamlab.geometry import FloatArray, se2_between, se2_compose
+from slamlab.slam.graph.loops import match_covariance
 from slamlab.slam.graph.submaps import FinishedSubmap, Submaps
 from slamlab.slam.grid import MapSettings, OccupancyGrid
 from slamlab.slam.matcher import LikelihoodFieldMatcher, MatchPoints
@@ -77,6 +78,26 @@ class LocalSlam:
         else:
             self.chain = self.online = matched
         return motion
+
+    def slack(self, scan: ScanPoints, step_m: float, slip_per_m: float) -> FloatArray:
+        """(3, 3) what the newest node's match did not pin, for its local edge (node frame):
+        the match's covariance (`loops.match_covariance`, from the score's curvature on the map
+        it was matched against) with every direction capped at (slip_per_m x step_m)^2. Down a
+        bare corridor the match pins nothing along it and the step's length there is the
+        odometry's, whose scale may be off by a few per cent: the edge may stretch that much,
+        so that a loop closure at the corridor's end moves the corridor, not the rest."""
+        cap = (slip_per_m * step_m) ** 2
+        if cap <= 0 or not len(scan.xy):
+            return np.zeros((3, 3))
+        grid = self.grid if self.grid is not None else (self.submaps.matching().grid if self.submaps.active else None)
+        if grid is None:
+            return np.zeros((3, 3))
+        cov = match_covariance(grid.field, grid.origin, grid.res, self.online, self.matcher.fine_points(scan), 0.0, 0.0)
+        w, v = np.linalg.eigh(cov[:2, :2])
+        w = np.minimum(w, cap)
+        out = np.zeros((3, 3))
+        out[:2, :2] = (v * w) @ v.T
+        return out
 
     def match_online(self, predicted: FloatArray, scans: ScanBatch | MatchPoints) -> FloatArray:
         """The poses (S, 3) where scans (none empty) fit the online map as it is now (the

@@ -6,9 +6,11 @@ For each submap whose area the search window reaches (nearest first, at most
    max-pooled field, one scan point per search cell; no candidate above `min_score`: nothing;
 2. the best candidate is refined like a local match (hill climbing on the submap's field at
    map resolution, no motion prior) and must keep a mean field value of `min_refined_score`;
-3. the ambiguity test: the best candidate at least `ambiguity_m` / `ambiguity_rad` away must
-   score under `ambiguity_ratio` times the best (a corridor seen end to end, or slid along
-   its length, matches as well the wrong way round: such a match says nothing);
+3. the ambiguity test: the best candidate at least `ambiguity_m` / `ambiguity_rad` away,
+   refined, must score under `ambiguity_ratio` times the best: a corridor seen end to end
+   matches as well the wrong way round, and such a match says nothing. Where the other pose
+   differs by a shift alone (a corridor slid along its length) the match still says where the
+   robot is across the corridor and how it is turned: it stays, with no weight along that line;
 4. what passes is a candidate closure: the node's pose seen from the submap's anchor node.
 The window is the uncertainty of the estimate: `window_m` right after an accepted closure,
 growing by `window_per_m` per metre travelled since (likewise the yaw window, up to a full
@@ -24,7 +26,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse
+from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, wrap_angle
 from slamlab.slam.graph.branch_bound import CorrelativeSearch, SearchWindow, yaw_step_for
 from slamlab.slam.graph.submaps import FinishedSubmap, Submaps
 from slamlab.slam.matcher import field_search, score_field, voxel_filter
@@ -71,6 +73,8 @@ class LoopCandidate:
     status: str = PENDING
     loop_id: int = -1  # its id in the pose graph once accepted
     covariance: FloatArray = field(default_factory=lambda: np.diag([1.0, 1.0, 0.1]))  # of `relative`, node frame (m^2, rad^2)
+    tied_m: float = 0.0  # how far (m of path) the node was from the submap since the graph last tied them
+    along_line: bool = False  # as good elsewhere along a line (a corridor): its covariance holds nothing along it
     see_through: float = 0.0  # share of the scan's beams that pass through the submap's walls at the match
     free_ends: float = 0.0  # share of its beams that end where the submap saw free space
 
@@ -121,19 +125,20 @@ class LoopSearch:
         self._fields: dict[int, np.ndarray] = {}  # float32 fields of the submaps refined lately
 
     def submaps_in_reach(self, pose: FloatArray, submaps: Submaps, anchors_global: FloatArray,
-                         windows: FloatArray) -> list[tuple[FinishedSubmap, FloatArray, tuple[float, float]]]:
+                         windows: FloatArray, tied_m: FloatArray) -> list[tuple[FinishedSubmap, FloatArray, tuple[float, float], float]]:
         """(submap, the node's pose in the submap's frame, window) for the finished submaps
         whose known area their window (`windows` (S, 2): half width m, half yaw rad) around
         `pose` reaches, nearest first, at most `max_submaps`. `anchors_global` (S, 3): each
-        finished submap's anchor's estimate."""
+        finished submap's anchor's estimate; `tied_m` (S,): how far each is from the node since
+        the graph last tied them (m of path), carried with each."""
         frames = se2_compose(anchors_global, se2_inverse(submaps.finished_anchor_local))  # submap frame -> global
         guess = se2_between(frames, pose)
         d = np.hypot(guess[:, 0] - submaps.finished_center[:, 0], guess[:, 1] - submaps.finished_center[:, 1])
         near = np.flatnonzero(d <= submaps.finished_radius + windows[:, 0])
         near = near[np.argsort(d[near], kind="stable")][: self.s.max_submaps]
-        return [(submaps.finished[j], guess[j], (float(windows[j, 0]), float(windows[j, 1]))) for j in near]
+        return [(submaps.finished[j], guess[j], (float(windows[j, 0]), float(windows[j, 1])), float(tied_m[j])) for j in near]
 
-    def search(self, node: int, pose: FloatArray, fine_pts: FloatArray, origin: FloatArray, reach: list[tuple[FinishedSubmap, FloatArray, tuple[float, float]]],
+    def search(self, node: int, pose: FloatArray, fine_pts: FloatArray, origin: FloatArray, reach: list[tuple[FinishedSubmap, FloatArray, tuple[float, float], float]],
                anchors_global: dict[int, FloatArray]) -> list[LoopCandidate]:
         """Candidates of node `node` (estimate `pose`, scan points `fine_pts` (M, 2) body
         frame, m, seen from the lidar at `origin` there) in the submaps `reach` (`submaps_in_reach`). Only matches above
@@ -145,7 +150,7 @@ class LoopSearch:
         if len(pts) < MIN_POINTS:
             return out
         yaw_step = yaw_step_for(pts, s.resolution_m)
-        for sm, guess, (half_xy, half_yaw) in reach:
+        for sm, guess, (half_xy, half_yaw), tied in reach:
             grid = sm.search_grid(s.resolution_m, s.levels)
             # the window, cut to the submap's area (the robot stood where the submap saw from)
             H, W = sm.field_u8.shape
@@ -165,6 +170,7 @@ class LoopSearch:
             refined_pose, refined = self._refine(sm, field, best.pose, fine_pts)
             second = 0.0
             status = PENDING
+            along = None  # the direction (submap frame) along which the match is ambiguous, if it is along a line
             if refined < s.min_refined_score:
                 status = WEAK
             else:
@@ -173,21 +179,27 @@ class LoopSearch:
                 other = cs.best_outside(best, s.ambiguity_m, s.ambiguity_rad, AMBIGUITY_SEARCH * s.ambiguity_ratio * best.score)
                 self.nodes_scored += other.nodes
                 if other.found:
-                    second = self._refine(sm, field, other.pose, fine_pts)[1]
+                    other_pose, second = self._refine(sm, field, other.pose, fine_pts)
                     if second >= s.ambiguity_ratio * refined:
-                        status = AMBIGUOUS
+                        along = _along_line(refined_pose, other_pose, s.ambiguity_rad / 2)
+                        if along is None:
+                            status = AMBIGUOUS
             through, free_end, _ = contradictions(sm.state_u8, sm.field_u8, float(sm.origin[0]), float(sm.origin[1]), 1.0 / sm.resolution_m,
                                                   float(refined_pose[0]), float(refined_pose[1]), float(refined_pose[2]),
                                                   np.ascontiguousarray(fine_pts, dtype=np.float64), float(origin[0]), float(origin[1]),
                                                   int(round(WALL_MARGIN_M / sm.resolution_m)))
             anchor_pose = anchors_global[sm.anchor]
             relative = se2_between(sm.anchor_local, refined_pose)
+            cov = match_covariance(field, sm.origin, sm.resolution_m, refined_pose, fine_pts, self.sigma_m, self.sigma_rad)
+            if along is not None:  # no pull along the line of equally good poses (a corridor's length)
+                c, sn = np.cos(refined_pose[2]), np.sin(refined_pose[2])
+                u = np.array([c * along[0] + sn * along[1], -sn * along[0] + c * along[1]])  # in the node's frame
+                cov[:2, :2] += MAX_SIGMA_M**2 * np.outer(u, u)
             out.append(LoopCandidate(
                 node=node, submap=sm.index, anchor=sm.anchor, relative=relative, score=best.score, refined=refined,
                 second=second, window_m=half_xy, node_pose=np.asarray(pose, dtype=np.float64).copy(),
                 match_pose=se2_compose(anchor_pose, relative), status=status,
-                covariance=match_covariance(field, sm.origin, sm.resolution_m, refined_pose, fine_pts, self.sigma_m, self.sigma_rad),
-                see_through=through / max(len(fine_pts), 1), free_ends=free_end / max(len(fine_pts), 1),
+                covariance=cov, along_line=along is not None, see_through=through / max(len(fine_pts), 1), free_ends=free_end / max(len(fine_pts), 1), tied_m=tied,
             ))
         self.seconds += time.perf_counter() - t0
         return out
@@ -214,6 +226,17 @@ class LoopSearch:
                      p, p, _NO_OFFSETS, self.refine_step_m, yaw_step, self.refine_levels, 0.0, 0.0, out, score, evals,
                      _NO_EXT, _NO_LUT, 0.0, 0.0)
         return out[0], float(score[0]) / max(len(p), 1)
+
+
+def _along_line(best: FloatArray, other: FloatArray, max_yaw_rad: float) -> FloatArray | None:
+    """The unit direction (map frame) from `best` to `other` when the two differ by a shift
+    alone (yaws within `max_yaw_rad`): the match is then ambiguous along that line only, as
+    down a corridor. None when they differ in yaw (a corridor seen end to end, another place)."""
+    if abs(float(wrap_angle(other[2] - best[2]))) > max_yaw_rad:
+        return None
+    d = np.asarray(other[:2], dtype=np.float64) - best[:2]
+    n = float(np.hypot(d[0], d[1]))
+    return d / n if n > 0 else None
 
 
 @numba.njit(cache=True)

@@ -3,7 +3,8 @@ closures, optimised with GTSAM (`gtsam.BetweenFactorPose2`; ISAM2, Kaess et al. 
 Levenberg-Marquardt).
 
 - Node k follows node k-1 by local SLAM's relative pose (a `BetweenFactorPose2` whose sigma
-  grows with the step: `local_sigma_m + local_sigma_per_m x distance`, likewise in yaw);
+  grows with the step: `local_sigma_m + local_sigma_per_m x distance`, likewise in yaw; plus
+  the slack local SLAM reports where its match pinned nothing);
   node 0 is held by a prior at the start pose.
 - A loop closure is a `BetweenFactorPose2` from a submap's anchor node to the node whose scan
   matched it, under a robust loss (Cauchy by default): a residual of r sigmas weighs
@@ -76,7 +77,7 @@ class PoseGraph:
         self._x = np.zeros((1024, 3))
         self._x[0] = self.start
         self.n = 1
-        self.chain: list[tuple[FloatArray, FloatArray]] = []  # (relative pose, sigmas) of node k from k-1, k >= 1
+        self.chain: list[tuple[FloatArray, FloatArray]] = []  # (relative pose, covariance) of node k from k-1, k >= 1
         self.loops: list[tuple[int, int, FloatArray]] = []  # (anchor node, node, relative pose)
         self.loop_cov: list[FloatArray] = []  # each closure's covariance
         self._ties: np.ndarray | None = None  # `active_ties`, made when first asked for after a change
@@ -93,10 +94,12 @@ class PoseGraph:
         """(N, 3) the current estimate of every node (a view)."""
         return self._x[: self.n]
 
-    def add_node(self, relative: FloatArray) -> int:
+    def add_node(self, relative: FloatArray, slack: FloatArray | None = None) -> int:
         """A node following the last one by `relative` (its pose seen from the last node's, as
-        local SLAM matched it); its estimate continues the last one's. Returns its id. It
-        reaches ISAM2 at the next `update`."""
+        local SLAM matched it); its estimate continues the last one's. The edge's covariance:
+        the local sigmas of a step that long (module doc) plus `slack` (3, 3; the new node's
+        frame), what local SLAM could not pin (down a corridor, the distance travelled along
+        it). Returns its id. It reaches ISAM2 at the next `update`."""
         if self.n == len(self._x):
             self._x = np.concatenate([self._x, np.zeros_like(self._x)])
         rel = np.asarray(relative, dtype=np.float64).copy()
@@ -104,9 +107,10 @@ class PoseGraph:
         dist = float(np.hypot(rel[0], rel[1]))
         sig = np.array([nz.local_sigma_m + nz.local_sigma_per_m * dist, nz.local_sigma_m + nz.local_sigma_per_m * dist,
                         nz.local_sigma_rad + nz.local_sigma_per_rad * abs(float(rel[2]))])
+        cov = np.diag(sig**2) if slack is None else np.diag(sig**2) + slack
         k = self.n
         self._x[k] = se2_compose(self._x[k - 1], rel)
-        self.chain.append((rel, sig))
+        self.chain.append((rel, cov))
         self._pending.append((False, k))
         self.n += 1
         return k
@@ -117,10 +121,6 @@ class PoseGraph:
         if self._ties is None:
             self._ties = np.array([(a, i) for (a, i, _), on in zip(self.loops, self.active) if on], dtype=np.int64).reshape(-1, 2)
         return self._ties
-
-    def chain_sigma(self, node: int) -> FloatArray:
-        """(3,) the sigmas of the local edge into `node` (node >= 1)."""
-        return self.chain[node - 1][1]
 
     def add_loop(self, anchor: int, node: int, relative: FloatArray, covariance: FloatArray | None = None) -> int:
         """A loop closure: `node`'s pose seen from `anchor`'s is `relative`, with `covariance`
@@ -197,9 +197,11 @@ class PoseGraph:
         return np.hypot(d[:, 0], d[:, 1]), np.abs(wrap_angle(d[:, 2]))
 
     # ---- internals
-    def _chain_factor(self, k: int) -> gtsam.BetweenFactorPose2:
-        rel, sig = self.chain[k - 1]
-        return gtsam.BetweenFactorPose2(k - 1, k, _pose(rel), gtsam.noiseModel.Diagonal.Sigmas(sig))
+    def _chain_factor(self, k: int, diagonal: bool = False) -> gtsam.BetweenFactorPose2:
+        """The local edge into node k: its covariance, or (`diagonal`, for LAGO) its sigmas."""
+        rel, cov = self.chain[k - 1]
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(np.diag(cov))) if diagonal else gtsam.noiseModel.Gaussian.Covariance(cov)
+        return gtsam.BetweenFactorPose2(k - 1, k, _pose(rel), noise)
 
     def _loop_factor(self, loop: int, robust: bool = True) -> gtsam.BetweenFactorPose2:
         """Closure `loop` as a factor: its covariance, under the robust loss (`robust`), or
@@ -238,7 +240,7 @@ class PoseGraph:
         g = gtsam.NonlinearFactorGraph()
         g.add(gtsam.PriorFactorPose2(0, _pose(self.start), self._prior_noise))
         for k in range(1, self.n):
-            g.add(self._chain_factor(k))
+            g.add(self._chain_factor(k, diagonal=not robust))
         for j, on in enumerate(self.active):
             if on:
                 g.add(self._loop_factor(j, robust))

@@ -28,6 +28,7 @@ search window (`loops.WindowPolicy`).
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 
@@ -51,6 +52,7 @@ from slamlab.slam.scan import ScanBatch, ScanPoints, points_to_world, project_sc
 from slamlab.slam.steps import fill_between_steps
 
 FAR_RAD_PER_M = 0.1  # a correction of far_m metres, or of far_m x this in yaw (rad), is a large one
+log = logging.getLogger(__name__)
 REFRESH_EVERY = 10  # every node's estimate read back from ISAM2 every this many nodes (the search windows'
 # submap placements, and the check of every closure against the estimate)
 
@@ -83,7 +85,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
                         refine_step_m=ms.resolution_m, refine_levels=matcher.refine_levels + 1,
                         sigma_m=s.loop_sigma_m, sigma_rad=s.loop_sigma_rad)
     policy = WindowPolicy(s.window_m, s.window_per_m, s.window_max_m, s.window_yaw_rad, s.window_yaw_per_m)
-    verifier = ClosureVerifier(VerifySettings(s.trust_m, s.trust_rad, s.group_size, s.group_extent_m, s.group_span_m, s.consistency_m,
+    verifier = ClosureVerifier(VerifySettings(s.trust_m, s.trust_rad, s.loop_min_path_m, s.group_size, s.group_extent_m, s.group_span_m, s.consistency_m,
                                               s.consistency_per_m, s.consistency_rad, s.consistency_rad_per_m))
     causal = np.empty((n_steps, 3))
     path_m = np.zeros(n_steps)  # path length (m) of the local trajectory at each node
@@ -105,8 +107,9 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
             first_scan = (points_to_world(pts.xy, start), points_to_world(pts.origin.reshape(1, 2), start)[0])
         else:
             motion = tracker.step(se2_between(odom[step_scans[k - 1]], odom[si]), pts)
-            path_m[k] = path_m[k - 1] + float(np.hypot(motion[0], motion[1]))
-            graph.add_node(motion)
+            step_m = float(np.hypot(motion[0], motion[1]))
+            path_m[k] = path_m[k - 1] + step_m
+            graph.add_node(motion, tracker.slack(pts, step_m, s.local_slip_per_m))
         for done in tracker.insert(k, pts):
             tied.add_submap(done.anchor, path_m)
         online = tracker.online
@@ -129,6 +132,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
         far = any(not correction_fits(c, graph.poses, s.far_m, s.far_m * FAR_RAD_PER_M) for c in accepted)
         if far:  # the first return of a long loop: the whole graph from LAGO
             opt_s = _optimise(graph, candidates, s.prune_m, s.prune_rad, from_lago=True)
+            log.debug("node %d: far closures, the whole graph from LAGO (%.2f s)", k, opt_s)
         else:
             graph.update()
             if k % REFRESH_EVERY == 0:
@@ -141,6 +145,8 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
         if tracker.whole and _apart(graph.poses[k], tracker.online, s.redraw_m, s.redraw_rad):
             # the graph moved the robot away from where the online map has it: draw that map again from the graph
             t1 = time.perf_counter()
+            d = se2_between(tracker.online, graph.poses[k])
+            log.debug("node %d: the graph moved the robot %.2f m, %.1f deg from the online map: redrawn", k, float(np.hypot(d[0], d[1])), float(np.degrees(d[2])))
             tracker.redraw([points(i) for i in step_scans[: k + 1]], graph.poses[: k + 1])
             opt_s += time.perf_counter() - t1
         causal[k] = tracker.online if tracker.whole else graph.poses[k]
@@ -252,7 +258,7 @@ def _search_loops(k: int, scan: ScanPoints, submaps: Submaps, graph: PoseGraph, 
     each submap's `TiedSubmaps` distance)."""
     anchors = submaps.finished_anchor
     poses = graph.poses
-    reach = search.submaps_in_reach(poses[k], submaps, poses[anchors], policy.at(drift_m))
+    reach = search.submaps_in_reach(poses[k], submaps, poses[anchors], policy.at(drift_m), drift_m)
     return search.search(k, poses[k], matcher.fine_points(scan), scan.origin, reach, {int(a): poses[a] for a in anchors})
 
 

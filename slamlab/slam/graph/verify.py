@@ -6,7 +6,10 @@ to end. Two tests decide, besides the ambiguity test of the search itself:
 - A candidate that confirms the estimate (the move it asks of its node is within `trust_m`
   and `trust_rad` of nothing where the match pins the pose: `correction_fits`) enters on
   its own.
-- A candidate that asks for a larger correction waits for others (`group_span_m` of travel). Two closures
+- A candidate that asks for a larger correction is a loop closure only if the graph has
+  not tied the robot to that submap within the last `loop_min_path_m` of path (otherwise the
+  local map already holds that place, and a match that disagrees with it is the mistake:
+  a corridor seen a few doors off). A loop closure waits for others (`group_span_m` of travel). Two closures
   are consistent when the cycle they make with the graph's own estimate between their nodes
   and between their anchors closes, within both closures' covariances and the drift the
   cycle's path allows (`consistency_matrix`; Mangelson et al. 2018, "Pairwise consistent
@@ -20,6 +23,7 @@ to end. Two tests decide, besides the ambiguity test of the search itself:
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,11 +33,14 @@ from scipy.sparse.csgraph import dijkstra
 from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, wrap_angle
 from slamlab.slam.graph.loops import ACCEPTED, INCONSISTENT, PENDING, LoopCandidate
 
+log = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True, slots=True)
 class VerifySettings:
     trust_m: float
     trust_rad: float
+    loop_min_path_m: float
     group_size: int
     group_extent_m: float
     group_span_m: float
@@ -167,6 +174,8 @@ class ClosureVerifier:
             if correction_fits(c, poses, s.trust_m, s.trust_rad):
                 c.status = ACCEPTED
                 accepted.append(c)
+            elif c.tied_m < s.loop_min_path_m:  # a correction against a map the graph holds tied to the robot
+                c.status = INCONSISTENT
             else:
                 self.pending.append(c)
                 changed = True
@@ -181,6 +190,8 @@ class ClosureVerifier:
             group = [self.pending[v] for v in max_clique(consistency_matrix(self.pending, poses, path_m, s, ties))]
             spread = np.ptp([path_m[c.node] for c in group]) if group else 0.0
             if len({c.node for c in group}) >= s.group_size and spread >= s.group_extent_m:
+                log.debug("node %d: a group of %d closures enters (nodes %s, submaps %s, moves %s m)", node, len(group),
+                          [c.node for c in group], [c.submap for c in group], [round(float(np.hypot(*correction(c, poses)[:2])), 2) for c in group])
                 for c in group:
                     c.status = ACCEPTED
                 accepted.extend(group)
