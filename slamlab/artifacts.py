@@ -111,7 +111,7 @@ def write_consistency(run_dir: Path, series: dict[str, np.ndarray]) -> None:
 
 
 # epoch times need microseconds, not the floats' significant digits
-_TIME_FORMATS = {"t": ".6f", "t1": ".6f", "t2": ".6f"}
+_TIME_FORMATS = {"t": ".6f", "t1": ".6f", "t2": ".6f", "t_anchor": ".6f"}
 
 
 def write_table(path: Path, table: Table, float_format: str = "%.6g") -> None:

@@ -153,6 +153,7 @@ def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> RunMet
         # MB held by the map(s): shared tiles counted once (rbpf); at the end and at peak
         map_memory={k: v for k, v in result.extras.items() if k.startswith("map_")},
         odometry_scale=result.extras.get("odometry_scale"),
+        graph=result.extras.get("graph"),
     )
 
 
@@ -356,6 +357,8 @@ def run_pipeline(
             relations = relation_table(seq, result)
             if relations is not None:
                 artifacts.write_table(run / RunFile.RELATIONS, relations)
+            if result.extras.get("loops") is not None:
+                artifacts.write_table(run / RunFile.LOOPS, result.extras["loops"])
             write_recordings(run_dir, result, setup.run.record.first_scan)
             run.write_manifest(build_manifest(cfg, seq.sources, overrides or [], str(Path.cwd())))
         except BaseException:

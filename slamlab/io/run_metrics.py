@@ -35,7 +35,7 @@ class RunMetrics:
     # --- filter statistics (slamlab.pipeline.filter_metrics) ---
     dataset: str | None = None
     mode: str | None = None  # "slam", "odometry" or "predict"
-    filter: str | None = None  # "course" or "rbpf"
+    filter: str | None = None  # "course", "rbpf" or "graph"
     scans: int | None = None
     processed_steps: int | None = None
     particles: int | None = None
@@ -53,6 +53,7 @@ class RunMetrics:
     matcher_map_reads: int | None = None
     map_memory: dict[str, Any] | None = None  # MB and tile counts of the map(s)
     odometry_scale: float | None = None  # the best particle's learnt odometry scale at the end (motion.scale_gain_per_m > 0)
+    graph: dict[str, Any] | None = None  # filter=graph: nodes, submaps, loop searches and closures by status, optimisations and their time
     cpu_time_s: float | None = None  # SLAM filter loop, CPU (s)
     # --- accuracy sections (slamlab.eval); absent where the dataset cannot score them ---
     trajectory: dict[str, Any] | None = None

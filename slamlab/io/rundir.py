@@ -46,6 +46,7 @@ class RunFile(StrEnum):
     PARTICLES = "particles.npz"  # record.particles
     REPLAY = "replay.npz"  # record.replay
     RELATIONS = "relations.csv"  # logs with benchmark relations
+    LOOPS = "loops.csv"  # filter=graph: every loop candidate, accepted or not
     FIRST_SCAN = "first_scan.npz"  # record.first_scan
     TEXTURE = "texture.png"
     TEXTURE_OVER_MAP = "texture_over_map.png"

@@ -98,6 +98,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
 
     between_scans = BetweenScans(step_scans, len(scans), project, lambda batch: batch)
     tied = TiedSubmaps()
+    by_loop: dict[int, LoopCandidate] = {}  # the candidate behind each closure of the graph
     first_scan = None
     t_loop = time.perf_counter()
     for k, si in enumerate(step_scans):
@@ -128,17 +129,18 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
         opt_s = 0.0
         for cand in accepted:
             cand.loop_id = graph.add_loop(cand.anchor, cand.node, cand.relative, cand.covariance)
+            by_loop[cand.loop_id] = cand
             tied.add_closure(cand.node, cand.anchor, path_m)
         far = any(not correction_fits(c, graph.poses, s.far_m, s.far_m * FAR_RAD_PER_M) for c in accepted)
         if far:  # the first return of a long loop: the whole graph from LAGO
-            opt_s = _optimise(graph, candidates, s.prune_m, s.prune_rad, from_lago=True)
+            opt_s = _optimise(graph, by_loop, s.prune_m, s.prune_rad, from_lago=True)
             log.debug("node %d: far closures, the whole graph from LAGO (%.2f s)", k, opt_s)
         else:
             graph.update()
             if k % REFRESH_EVERY == 0:
                 t1 = time.perf_counter()
                 graph.refresh()
-                if _prune(graph, candidates, s.prune_m, s.prune_rad):
+                if _prune(graph, by_loop, s.prune_m, s.prune_rad):
                     graph.update()
                     graph.refresh()
                 opt_s = time.perf_counter() - t1
@@ -161,7 +163,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
             break
     verifier.flush()
     graph.update()
-    final_s = _optimise(graph, candidates, s.prune_m, s.prune_rad, from_lago=False) if graph.loops else 0.0
+    final_s = _optimise(graph, by_loop, s.prune_m, s.prune_rad, from_lago=False) if graph.loops else 0.0
     runtime = time.perf_counter() - t_loop
     smooth = graph.poses.copy()
     final_map = _render_map(ms, [points(i) for i in step_scans], smooth)
@@ -212,11 +214,12 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
                 "optimise_s": float(sum(o.seconds for o in graph.optimisations)),
                 "update_s": float(graph.update_seconds),
                 "redraws": int(tracker.redraws),
+                "largest_correction_m": float(max([o.moved_max_m for o in graph.optimisations], default=0.0)),
                 "final_optimise_s": final_s,
                 "search_s": float(search.seconds),
             },
             "loop_candidates": candidates,
-            "graph_poses": smooth,
+            "loops": closures_table(candidates, graph, times[step_scans], smooth),
         },
     )
 
@@ -262,36 +265,66 @@ def _search_loops(k: int, scan: ScanPoints, submaps: Submaps, graph: PoseGraph, 
     return search.search(k, poses[k], matcher.fine_points(scan), scan.origin, reach, {int(a): poses[a] for a in anchors})
 
 
+def closures_table(candidates: list[LoopCandidate], graph: PoseGraph, node_times: FloatArray, final: FloatArray) -> Table:
+    """loops.csv (docs/RUN_DIRECTORY.md): one row per loop candidate the search found, in the
+    order found. t and t_anchor (s): the node's and the submap anchor's scan times; status
+    (accepted, ambiguous, weak, inconsistent, pruned); the scores; window_m and tied_m;
+    node_x/y (m): the node's estimate when searched; match_x/y: where the match put it then;
+    moved_m: how far it asked the node to move; final_x/y and anchor_x/y: the node's and the
+    anchor's optimised positions (the closure drawn on the map); residual_m: how far the
+    final graph is from it; sigma_along_m: its largest translation sigma (a corridor's length)."""
+    if not candidates:
+        return Table({})
+    nodes = np.array([c.node for c in candidates])
+    anchors = np.array([c.anchor for c in candidates])
+    rel = np.array([c.relative for c in candidates])
+    implied = se2_compose(final[anchors], rel)
+    residual = np.hypot(implied[:, 0] - final[nodes, 0], implied[:, 1] - final[nodes, 1])
+    node_pose = np.array([c.node_pose for c in candidates])
+    match_pose = np.array([c.match_pose for c in candidates])
+    return Table({
+        "t": node_times[nodes], "node": nodes, "submap": np.array([c.submap for c in candidates]), "anchor": anchors,
+        "t_anchor": node_times[anchors], "status": np.array([c.status for c in candidates]),
+        "score": np.array([c.score for c in candidates]), "refined": np.array([c.refined for c in candidates]),
+        "second": np.array([c.second for c in candidates]), "window_m": np.array([c.window_m for c in candidates]),
+        "tied_m": np.array([c.tied_m for c in candidates]),
+        "node_x": node_pose[:, 0], "node_y": node_pose[:, 1], "match_x": match_pose[:, 0], "match_y": match_pose[:, 1],
+        "moved_m": np.hypot(match_pose[:, 0] - node_pose[:, 0], match_pose[:, 1] - node_pose[:, 1]),
+        "final_x": final[nodes, 0], "final_y": final[nodes, 1], "anchor_x": final[anchors, 0], "anchor_y": final[anchors, 1],
+        "residual_m": residual, "sigma_along_m": np.array([float(np.sqrt(np.linalg.eigvalsh(c.covariance[:2, :2]).max())) for c in candidates]),
+    })
+
+
 def _apart(a: FloatArray, b: FloatArray, m: float, rad: float) -> bool:
     """Whether poses a and b differ by more than m metres or rad radians."""
     d = se2_between(a, b)
     return bool(np.hypot(d[0], d[1]) > m or abs(d[2]) > rad)
 
 
-def _prune(graph: PoseGraph, candidates: list[LoopCandidate], prune_m: float, prune_rad: float) -> bool:
-    """Drop the closures the estimate leaves more than prune_m / prune_rad off (status
-    `pruned`); whether any was dropped."""
+def _prune(graph: PoseGraph, by_loop: dict[int, LoopCandidate], prune_m: float, prune_rad: float) -> bool:
+    """Drop the closures the estimate leaves more than prune_m / prune_rad off (their
+    candidates' status becomes `pruned`); whether any was dropped."""
     active = np.flatnonzero(graph.active)
     dm, dr = graph.loop_residuals(active)
     off = active[(dm > prune_m) | (dr > prune_rad)]
     if len(off):
-        by_loop = {cand.loop_id: cand for cand in candidates if cand.loop_id >= 0}
         for loop in off:
             graph.drop_loop(int(loop))
             by_loop[int(loop)].status = PRUNED
     return bool(len(off))
 
 
-def _optimise(graph: PoseGraph, candidates: list[LoopCandidate], prune_m: float, prune_rad: float, from_lago: bool) -> float:
+def _optimise(graph: PoseGraph, by_loop: dict[int, LoopCandidate], prune_m: float, prune_rad: float, from_lago: bool) -> float:
     """The whole graph by Levenberg-Marquardt (from LAGO's estimate when `from_lago`); then
     drop the closures the optimum leaves far off and optimise again while any were dropped
-    (at most three times). Returns the seconds spent."""
+    (at most three times), from LAGO again when it started there: LAGO has no robust loss,
+    and a wrong closure it took in may have bent the start. Returns the seconds spent."""
     t0 = time.perf_counter()
     graph.optimise_batch(from_lago=from_lago)
     for _ in range(3):
-        if not _prune(graph, candidates, prune_m, prune_rad):
+        if not _prune(graph, by_loop, prune_m, prune_rad):
             break
-        graph.optimise_batch(from_lago=False)
+        graph.optimise_batch(from_lago=from_lago)
     return time.perf_counter() - t0
 
 

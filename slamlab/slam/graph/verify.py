@@ -85,7 +85,14 @@ def tied_distances(path_m: FloatArray, ties: np.ndarray, nodes: np.ndarray) -> F
         rows.append(t[:, 0])
         cols.append(t[:, 1])
         weights.append(np.full(len(t), 1e-9))
-    graph = csr_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
+    lo, hi = np.minimum(r, c), np.maximum(r, c)
+    order = np.lexsort((w, hi, lo))  # per pair of key nodes the cheapest edge first (a sparse matrix would add them up)
+    lo, hi, w = lo[order], hi[order], w[order]
+    first = np.ones(len(lo), dtype=bool)
+    first[1:] = (lo[1:] != lo[:-1]) | (hi[1:] != hi[:-1])
+    keep = first & (lo != hi)
+    graph = csr_matrix((w[keep], (lo[keep], hi[keep])), shape=(n, n))
     q = np.searchsorted(keys, np.asarray(nodes, dtype=np.int64))
     return dijkstra(graph, directed=False, indices=q)[:, q]
 

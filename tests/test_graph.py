@@ -1,0 +1,243 @@
+"""filter=graph: the branch-and-bound search is exact, wrong closures cannot bend the map, the
+online poses do not depend on the future, and a run is reproducible to the byte.
+
+The end-to-end tests drive the graph filter on a simulated CARMEN log of the `loops` building
+at 2x (benchmarks/sim_carmen.py: 416 m, two loops, wheel odometry drifting by tens of metres),
+where local SLAM alone ends up metres off and only loop closures keep the map together."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slamlab.assemble import build_components
+from slamlab.datasets.carmen import load_carmen
+from slamlab.errors import ConfigError
+from slamlab.eval.relations import relation_errors
+from slamlab.geometry import se2_between, se2_compose
+from slamlab.slam.engine import run_slam
+from slamlab.slam.graph.branch_bound import NO_EXCLUSION, CorrelativeSearch, SearchGrid, SearchWindow, bnb_search, exhaustive_search, max_pool_levels, place_points
+from slamlab.slam.graph.loops import ACCEPTED, LoopCandidate
+from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
+from slamlab.slam.graph.verify import VerifySettings, consistency_matrix, max_clique, tied_distances
+from test_slam_engine import _cfg
+
+_spec = importlib.util.spec_from_file_location("sim_carmen", Path(__file__).resolve().parents[1] / "benchmarks" / "sim_carmen.py")
+sim_carmen = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(sim_carmen)
+
+GRAPH = ("+experiment=lidar2d", "filter=graph", "dataset.path=unused")
+
+
+# ---- branch and bound ------------------------------------------------------------------------
+def _random_case(rng: np.random.Generator):
+    H, W = (int(v) for v in rng.integers(5, 60, 2))
+    grid = (rng.random((H, W)) ** 3 * 255).astype(np.uint8)
+    if rng.random() < 0.3:
+        grid = (grid > 200).astype(np.uint8) * 255  # few values: many ties
+    pts = rng.normal(0.0, 1.0, (int(rng.integers(1, 30)), 2)) * rng.uniform(0.1, 2.0)
+    yaws = rng.uniform(-3.0, 3.0, int(rng.integers(1, 6)))
+    rows, cols = place_points(pts, W * 0.025, H * 0.025, yaws, 0.0, 0.0, 20.0)
+    return grid, rows, cols, int(rng.integers(0, 20)), int(rng.integers(0, 20)), int(rng.integers(1, 7))
+
+
+def test_branch_and_bound_returns_the_exhaustive_searchs_best_on_random_maps_and_scans():
+    rng = np.random.default_rng(1)
+    for _ in range(300):
+        grid, rows, cols, wx, wy, levels = _random_case(rng)
+        score, k, dx, dy, _ = bnb_search(max_pool_levels(grid, levels), rows, cols, wx, wy, 0, NO_EXCLUSION)
+        # the same candidate (ties go to the smallest yaw index, then dx, then dy) and the
+        # same integer score, bit for bit
+        assert (score, k, dx, dy) == exhaustive_search(grid, rows, cols, wx, wy)
+
+
+def test_branch_and_bound_finds_a_scan_in_a_room_scoring_a_fraction_of_the_candidates():
+    """A 20 x 20 m room with a partition (0.1 m cells), a scan of its walls from (6, 7) turned
+    by 0.12 rad, searched over +-8 m and +-0.3 rad from (7, 6.5): found at its pose, bit for bit
+    the exhaustive score, with a small share of the 6 million candidates scored."""
+    grid = np.zeros((200, 200), dtype=np.uint8)
+    grid[[0, 199], :] = 255
+    grid[:, [0, 199]] = 255
+    grid[60, 40:160] = 255
+    grid[60:140, 120] = 255
+    walls = np.argwhere(grid > 0)[::7] * 0.1 + 0.05  # (row, col) cell centres -> y, x
+    xy = walls[:, ::-1]
+    pose = np.array([6.0, 7.0, 0.12])
+    c, s_ = math.cos(pose[2]), math.sin(pose[2])
+    d = xy - pose[:2]
+    pts = np.column_stack([c * d[:, 0] + s_ * d[:, 1], -s_ * d[:, 0] + c * d[:, 1]])  # in the body frame
+    window = SearchWindow(np.array([7.0, 6.5, 0.0]), 8.0, 8.0, 0.3)
+    search = CorrelativeSearch(SearchGrid.of(grid, (0.0, 0.0), 0.1, 7), pts, window, 0.01)
+    best = search.best(0.5)
+    assert best.found and np.allclose(best.pose, pose, atol=[0.1, 0.1, 0.006])
+    full = exhaustive_search(grid, search.rows, search.cols, search.wx, search.wy)
+    assert best.score_sum == full[0]
+    candidates = len(search.yaws) * (2 * search.wx + 1) * (2 * search.wy + 1)
+    assert best.nodes < candidates / 100
+
+
+def test_the_second_best_search_leaves_out_the_box_around_the_best():
+    rng = np.random.default_rng(3)
+    grid = (rng.random((60, 60)) * 255).astype(np.uint8)
+    pts = rng.normal(0.0, 0.8, (25, 2))
+    window = SearchWindow(np.array([1.5, 1.5, 0.0]), 1.0, 1.0, 0.2)
+    search = CorrelativeSearch(SearchGrid.of(grid, (0.0, 0.0), 0.05, 5), pts, window, 0.05)
+    best = search.best(0.0)
+    second = search.best_outside(best, 0.3, 0.1, 0.0)
+    assert second.found and second.score <= best.score
+    # the exhaustive best over the candidates outside the box is the one found
+    ek, exy = int(math.floor(0.1 / 0.05)), int(math.floor(0.3 / 0.05))
+    top = -1
+    for k in range(len(search.yaws)):
+        for dx in range(-search.wx, search.wx + 1):
+            for dy in range(-search.wy, search.wy + 1):
+                if abs(k - best.k) <= ek and abs(dx - best.dx) <= exy and abs(dy - best.dy) <= exy:
+                    continue
+                one = exhaustive_search(grid, search.rows[k:k + 1] + dy, search.cols[k:k + 1] + dx, 0, 0)[0]
+                top = max(top, one)
+    assert second.score_sum == top
+
+
+# ---- verification -----------------------------------------------------------------------------
+def _closure(node: int, anchor: int, poses: np.ndarray, error=(0.0, 0.0, 0.0)) -> LoopCandidate:
+    rel = se2_compose(se2_between(poses[anchor], poses[node]), np.asarray(error, dtype=float))
+    return LoopCandidate(node=node, submap=0, anchor=anchor, relative=rel, score=0.9, refined=0.9, second=0.0, window_m=5.0,
+                         node_pose=poses[node], match_pose=poses[node], covariance=np.diag([1e-3, 1e-3, 1e-4]), tied_m=100.0)
+
+
+def test_closures_that_agree_form_a_clique_and_a_wrong_one_stays_out():
+    poses = np.column_stack([np.arange(100) * 0.5, np.zeros(100), np.zeros(100)])
+    s = VerifySettings(0.1, 0.02, 30.0, 3, 8.0, 20.0, 0.3, 0.02, 0.05, 0.002)
+    path = np.arange(100) * 0.5
+    good = [_closure(n, a, poses) for n, a in ((80, 10), (84, 12), (90, 14), (95, 20))]
+    wrong = _closure(88, 13, poses, (2.0, 0.0, math.radians(20)))
+    ok = consistency_matrix(good + [wrong], poses, path, s)
+    assert ok[:4, :4].all() and not ok[4, :4].any()
+    assert max_clique(ok) == [0, 1, 2, 3]
+
+
+def test_a_closure_ties_two_far_places_of_the_path_together():
+    path = np.arange(200) * 1.0
+    far = tied_distances(path, np.zeros((0, 2)), np.array([10, 190]))
+    tied = tied_distances(path, np.array([[12, 188]]), np.array([10, 190]))
+    assert far[0, 1] == pytest.approx(180.0) and tied[0, 1] == pytest.approx(4.0, abs=1e-6)
+
+
+# ---- the pose graph ---------------------------------------------------------------------------
+def test_a_wrong_closure_added_on_purpose_barely_moves_the_optimised_trajectory():
+    """A square loop with noisy local edges and correct closures; one closure 2 m and 20 deg
+    off, added to the same graph, moves no node by more than 2 cm (the robust loss)."""
+    rng = np.random.default_rng(4)
+    truth = [np.zeros(3)]
+    for side in range(4):
+        for _ in range(40):
+            truth.append(se2_compose(truth[-1], np.array([0.5, 0.0, 0.0])))
+        truth.append(se2_compose(truth[-1], np.array([0.0, 0.0, math.pi / 2])))
+    truth = np.array(truth)
+    noise = GraphNoise(0.01, 0.02, 0.005, 0.02, 0.03, 0.01, "cauchy", 1.0)
+
+    def graph(wrong: bool) -> np.ndarray:
+        g = PoseGraph(truth[0], noise)
+        for k in range(1, len(truth)):
+            g.add_node(se2_compose(se2_between(truth[k - 1], truth[k]), rng_steps[k - 1]))
+        for a, n in ((0, 160), (5, 150), (40, 120), (2, 162)):
+            g.add_loop(a, n, se2_between(truth[a], truth[n]))
+        if wrong:
+            g.add_loop(60, 100, se2_compose(se2_between(truth[60], truth[100]), np.array([2.0, 0.0, math.radians(20)])))
+        g.update()
+        g.optimise_batch()
+        return g.poses.copy()
+
+    rng_steps = rng.normal(0.0, [0.01, 0.01, 0.004], (len(truth) - 1, 3))
+    without, with_wrong = graph(False), graph(True)
+    assert np.hypot(*(without[:, :2] - truth[:, :2]).T).max() < 0.2  # the loop closed
+    assert np.hypot(*(with_wrong[:, :2] - without[:, :2]).T).max() <= 0.02
+
+
+# ---- end to end -------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def loop_log(tmp_path_factory):
+    """The 2x `loops` building's log (sim_carmen), its sequence and its true poses."""
+    out = tmp_path_factory.mktemp("graph-log")
+    clf = sim_carmen.write_log(out, scale=2.0, world_seed=0, seed=0, n_loop=300, yaw_bias_deg_per_m=sim_carmen.ODOM["yaw_bias_deg_per_m"])
+    return load_carmen(clf)
+
+
+def _run(seq, *overrides: str):
+    return run_slam(seq, build_components(_cfg(*GRAPH, *overrides)))
+
+
+@pytest.fixture(scope="module")
+def graph_run(loop_log):
+    """The graph filter's run on the log (shared by the tests below), and the pose graph it
+    ended with."""
+    from slamlab.slam.graph import pose_graph
+
+    graphs = []
+    init = pose_graph.PoseGraph.__init__
+
+    def keep(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        graphs.append(self)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(pose_graph.PoseGraph, "__init__", keep)
+        result = _run(loop_log)
+    return result, graphs[-1]
+
+
+@pytest.mark.slow
+def test_the_graph_closes_the_loops_that_local_slam_alone_leaves_metres_off(loop_log, graph_run):
+    graph = graph_run[0]
+    alone = _run(loop_log, "filter.min_score=1.0")  # no candidate ever reaches the score: no closure
+    err = relation_errors(graph.times, graph.trajectory, loop_log.relations, loop_min_dt_s=sim_carmen.LOOP_MIN_DT_S)
+    err_alone = relation_errors(alone.times, alone.trajectory, loop_log.relations, loop_min_dt_s=sim_carmen.LOOP_MIN_DT_S)
+    assert err_alone["loop"]["trans_abs_mean_m"] > 1.0
+    assert err["loop"]["trans_abs_mean_m"] < 0.4 and err["trans_abs_mean_m"] < 0.12
+    g = graph.extras["graph"]
+    assert g["accepted"] > 100 and g["nodes"] == len(graph.extras["step_scans"])
+    loops = graph.extras["loops"]
+    assert (loops["status"] == ACCEPTED).sum() == g["accepted"] and len(loops) == g["candidates"]
+
+
+@pytest.mark.slow
+def test_a_run_cut_short_gives_the_same_online_poses_up_to_its_end(loop_log, graph_run):
+    full = graph_run[0]
+    n = len(loop_log.scans) // 2
+    cut = _run(loop_log, f"steps.max_scans={n}")
+    assert len(cut.causal) == n
+    assert cut.causal.tobytes() == full.causal[:n].tobytes()
+
+
+@pytest.mark.slow
+def test_the_same_config_gives_the_same_bytes(loop_log, graph_run):
+    a, b = graph_run[0], _run(loop_log)
+    assert a.trajectory.tobytes() == b.trajectory.tobytes() and a.causal.tobytes() == b.causal.tobytes()
+    assert a.log_odds.data.tobytes() == b.log_odds.data.tobytes()
+
+
+def test_the_graph_filter_needs_the_likelihood_matcher():
+    from slamlab.frames import Sequence
+    from test_slam_engine import _room_sequence
+
+    seq: Sequence = _room_sequence()
+    with pytest.raises(ConfigError, match="matcher"):
+        run_slam(seq, build_components(_cfg("filter=graph", "matcher=grid")))
+
+
+@pytest.mark.slow
+def test_a_wrong_closure_added_to_a_runs_graph_leaves_its_optimum_within_2_cm(graph_run):
+    """The pose graph the run on the simulated log ends with, optimised again as it is and with
+    one closure 2 m and 20 degrees off added half way (no pruning: the robust loss alone)."""
+    g = graph_run[1]
+    g.optimise_batch()
+    without = g.poses.copy()
+    k = g.n // 2
+    g.add_loop(k - 60, k, se2_compose(se2_between(without[k - 60], without[k]), np.array([2.0, 0.0, math.radians(20)])))
+    g.optimise_batch()
+    assert sum(g.active) > 100  # a graph held together by many closures
+    assert np.hypot(*(g.poses[:, :2] - without[:, :2]).T).max() <= 0.02
