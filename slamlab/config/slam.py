@@ -325,16 +325,18 @@ class GraphFilterConfig:
     search_resolution_m: float = 0.1  # cell of the search grid (rounded to a whole number of map cells)
     search_levels: int = 6  # branch-and-bound levels: the top node covers 2^(levels-1) cells a side
     search_every: int = 2  # search for loops from every k-th node
+    query_m: float = 6.0  # search with the scans of the last this many metres together (0: the node's scan alone)
     window_m: float = 0.5  # +- x and y searched around the current estimate right after a closure (m) ...
     window_per_m: float = 0.1  # ... growing by this per metre travelled since the last accepted closure
     window_max_m: float = 60.0  # ... up to this (m)
     window_yaw_rad: float = 0.05  # +- yaw right after a closure (rad) ...
-    window_yaw_per_m: float = 0.01  # ... growing per metre travelled (rad/m), to a full turn
+    window_yaw_per_m: float = 0.003  # ... growing per metre travelled (rad/m: 60 degrees after 350 m), to a full turn
     min_score: float = 0.55  # branch-and-bound score a candidate must reach (mean search-grid value, 0..1)
     min_refined_score: float = 0.5  # mean field value at the refined pose (0..1)
-    ambiguity_ratio: float = 0.95  # rejected when another pose (ambiguity_m / ambiguity_rad away) scores this much of the best
+    ambiguity_ratio: float = 0.9  # rejected when another pose (ambiguity_m / ambiguity_rad away) scores this much of the best
     ambiguity_m: float = 1.0
     ambiguity_rad: float = 0.35
+    wide_every: int = 5  # a wide window (over 5 m or 0.5 rad: tens of times the work) only from every k-th node
     max_submaps_per_node: int = 2  # nearest finished submaps searched from one node
     # ---- verification: a closure that moves its node by more than trust_m / trust_rad needs a group of mutually
     # consistent ones
@@ -354,6 +356,7 @@ class GraphFilterConfig:
     local_sigma_per_m: float = 0.02
     local_sigma_rad: float = 0.005  # ... and in yaw: this + per_rad x |turn| (rad)
     local_sigma_per_rad: float = 0.02
+    local_sigma_along_per_m: float = 0.02  # ... in the step's own direction this per metre instead (m/m)
     local_slip_per_m: float = 0.1  # ... plus, where the match pinned nothing (a bare corridor), up to this share of the step
     loop_sigma_m: float = 0.03  # a loop closure's sigma in x, y (m) and yaw (rad)
     loop_sigma_rad: float = 0.01
@@ -366,15 +369,15 @@ class GraphFilterConfig:
 
     def __post_init__(self) -> None:
         g = self.GROUP
-        for name in ("submap_nodes", "search_levels", "search_every", "max_submaps_per_node", "group_size"):
+        for name in ("submap_nodes", "search_levels", "search_every", "wide_every", "max_submaps_per_node", "group_size"):
             require_int(g, name, getattr(self, name), 2 if name in ("submap_nodes",) else 1)
         if self.search_levels > 12:
             raise ConfigError(f"{g}.search_levels", f"must be at most 12, got {self.search_levels!r}")
         for name in ("search_resolution_m", "window_max_m", "ambiguity_m", "ambiguity_rad", "loop_sigma_m", "loop_sigma_rad", "trust_m", "trust_rad", "far_m", "redraw_m", "redraw_rad",
                      "local_sigma_m", "local_sigma_rad", "loss_scale", "prune_m", "prune_rad", "consistency_m", "consistency_rad"):
             require_positive(g, name, getattr(self, name))
-        for name in ("window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "loop_min_path_m", "group_extent_m", "group_span_m",
-                     "consistency_per_m", "consistency_rad_per_m", "local_sigma_per_m", "local_sigma_per_rad", "local_slip_per_m"):
+        for name in ("window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "query_m", "loop_min_path_m", "group_extent_m", "group_span_m",
+                     "consistency_per_m", "consistency_rad_per_m", "local_sigma_per_m", "local_sigma_per_rad", "local_sigma_along_per_m", "local_slip_per_m"):
             require_nonnegative(g, name, getattr(self, name))
         for name in ("min_score", "min_refined_score", "ambiguity_ratio"):
             require_fraction(g, name, getattr(self, name))

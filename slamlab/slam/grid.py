@@ -15,7 +15,9 @@ import numpy as np
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
 from slamlab.config.slam import MapConfig
-from slamlab.slam.raycast import field_radius_cells, gaussian_kernel, raise_field, raycast_update, raycast_update_noting, update_field
+from slamlab.slam.raycast import (
+    field_radius_cells, gaussian_kernel, raise_field, raycast_update, raycast_update_noting, refresh_cells, update_field,
+)
 
 # The `map/` config group's schema is the settings object the grid reads: resolution_m,
 # log-odds (occupied > 0, free < 0, clamp bounds), occupied_threshold, ground_threshold_m,
@@ -124,6 +126,28 @@ class OccupancyGrid:
             return
         self._update_field(flips[:n_free], flips[n_free:n_free + n_occ])
 
+    def insert_many(self, sensors_xy: FloatArray, points_xy: list[FloatArray]) -> None:
+        """Ray-cast many scans (sensor positions (K, 2) m, world hit points, one (M, 2) array
+        per scan) in order, as `insert` one by one would, but growing the grid once to fit them
+        all and computing the field once at the end (where `insert` updates it scan by scan):
+        the same log-odds and field (tested), for a map drawn again from scratch."""
+        if not len(points_xy):
+            return
+        xs = np.concatenate([p[:, 0] for p in points_xy] + [sensors_xy[:, 0]])
+        ys = np.concatenate([p[:, 1] for p in points_xy] + [sensors_xy[:, 1]])
+        self.ensure(xs.min(), ys.min(), xs.max(), ys.max())
+        s = self.s
+        flip = np.array([np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1], dtype=np.int64)
+        for sensor, pts in zip(sensors_xy, points_xy):
+            if len(pts) == 0:
+                continue
+            rows, cols = self.cells(pts)
+            sr, sc = self.cells(np.asarray(sensor, dtype=np.float64).reshape(1, 2))
+            raycast_update(self.log_odds, int(sr[0]), int(sc[0]), rows, cols, np.float32(s.log_odds_occupied), np.float32(s.log_odds_free),
+                           np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold), flip)
+        if self.field is not None:
+            self._refresh_field(self.field, 0, self.shape[0], 0, self.shape[1])
+
     def _update_field(self, freed: np.ndarray, occupied: np.ndarray) -> None:
         """The field after cells turned free (`freed`) and occupied (`occupied`), (K, 2) rows
         and cols: around freed cells it is recomputed (a wall value there may have gone), then
@@ -134,7 +158,11 @@ class OccupancyGrid:
         if len(freed):
             r0, c0 = freed.min(axis=0)
             r1, c1 = freed.max(axis=0)
-            self._refresh_field(self.field, max(r0 - R, 0), min(r1 + R + 1, H), max(c0 - R, 0), min(c1 + R + 1, W))
+            box = (r1 - r0 + 2 * R + 1) * (c1 - c0 + 2 * R + 1)
+            if len(freed) * (2 * R + 1) ** 2 < box:  # a few cells far apart (long beams): each one's neighbourhood
+                refresh_cells(self.log_odds, self.field, np.float32(self.s.occupied_threshold), self.kernel, freed)
+            else:
+                self._refresh_field(self.field, max(r0 - R, 0), min(r1 + R + 1, H), max(c0 - R, 0), min(c1 + R + 1, W))
         if len(occupied):
             raise_field(self.field, self.kernel, occupied)
 

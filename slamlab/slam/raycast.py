@@ -158,6 +158,19 @@ def raise_field(field, kernel, cells):
 
 
 @numba.njit(cache=True)
+def refresh_cells(lo, field, thresh, kernel, cells):
+    """`update_field` over the (2R+1)^2 neighbourhood of each cell of `cells` (K, 2: row,
+    col), one after the other: the field around cells that turned free (their value may have
+    come from them), without recomputing the box spanning all of them."""
+    H, W = lo.shape
+    R = kernel.shape[0] // 2
+    for i in range(cells.shape[0]):
+        r = cells[i, 0]
+        c = cells[i, 1]
+        update_field(lo, field, thresh, kernel, max(r - R, 0), min(r + R + 1, H), max(c - R, 0), min(c + R + 1, W))
+
+
+@numba.njit(cache=True)
 def update_field(lo, field, thresh, kernel, r0, r1, c0, c1):
     """Recompute the likelihood field `field` (float32 [H, W]) in rows [r0, r1), cols
     [c0, c1): each cell gets the max of `kernel` (float32 [2R+1, 2R+1], e.g. a Gaussian of

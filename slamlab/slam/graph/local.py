@@ -18,6 +18,7 @@ matches, as each particle of the particle filters learns its own (`slam.odometry
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Sequence as SequenceABC
 
 import numpy as np
@@ -26,7 +27,7 @@ from slamlab.geometry import FloatArray, se2_between, se2_compose
 from slamlab.slam.graph.loops import match_covariance
 from slamlab.slam.graph.submaps import FinishedSubmap, Submaps
 from slamlab.slam.grid import MapSettings, OccupancyGrid
-from slamlab.slam.matcher import LikelihoodFieldMatcher, MatchPoints
+from slamlab.slam.matcher import LikelihoodFieldMatcher, MatchPoints, voxel_filter
 from slamlab.slam.odometry_scale import learn_scales, scaled_start
 from slamlab.slam.scan import ScanBatch, ScanPoints, points_to_world
 
@@ -45,6 +46,7 @@ class LocalSlam:
         self.chain = np.asarray(start, dtype=np.float64).copy()  # the newest node's chain pose (local frame)
         self.online = self.chain.copy()  # its online pose (the online map's frame)
         self.redraws = 0
+        self._recent: deque = deque()  # (path m, chain pose, scan points) of the last nodes (`remember`)
 
     @property
     def whole(self) -> bool:
@@ -99,6 +101,25 @@ class LocalSlam:
         out[:2, :2] = (v * w) @ v.T
         return out
 
+    def remember(self, node: int, path_m: float, points_xy: FloatArray, span_m: float) -> None:
+        """Keep node `node`'s scan points (body frame; path `path_m` m) with its chain pose for
+        `query`, dropping the nodes more than `span_m` of path behind it."""
+        self._recent.append((path_m, self.chain.copy(), np.asarray(points_xy, dtype=np.float64)))
+        while self._recent and path_m - self._recent[0][0] > span_m:
+            self._recent.popleft()
+
+    def query(self, voxel_m: float) -> FloatArray:
+        """The remembered scans (`remember`) in the newest node's frame, one point per `voxel_m`
+        square: what the robot saw over the last few metres, as one scan. A single scan down a
+        corridor of repeating doors matches a few doors off as well as where it is; the last few
+        metres' scans together see the corridor's irregular features (a junction behind, a door
+        that is not on the beat) and rarely fit anywhere else."""
+        here = self._recent[-1][1]
+        parts = [points_to_world(pts, se2_between(here, pose)) for _, pose, pts in self._recent if len(pts)]
+        if not parts:
+            return np.zeros((0, 2))
+        return np.ascontiguousarray(voxel_filter(np.concatenate(parts), voxel_m))
+
     def match_online(self, predicted: FloatArray, scans: ScanBatch | MatchPoints) -> FloatArray:
         """The poses (S, 3) where scans (none empty) fit the online map as it is now (the
         older active submap with local_map=submap), predicted in its frame."""
@@ -119,9 +140,8 @@ class LocalSlam:
         assert self.grid is not None, "local_map=submap keeps no online map"
         self.redraws += 1
         grid = self._new_grid((float(poses[0, 0]), float(poses[0, 1])))
-        for pts, pose in zip(scans, poses):
-            if len(pts.xy):
-                grid.insert(points_to_world(pts.origin.reshape(1, 2), pose)[0], points_to_world(pts.xy, pose))
+        sensors = np.array([points_to_world(pts.origin.reshape(1, 2), pose)[0] for pts, pose in zip(scans, poses)])
+        grid.insert_many(sensors, [points_to_world(pts.xy, pose) for pts, pose in zip(scans, poses)])
         self.grid = grid
         self.online = np.asarray(poses[-1], dtype=np.float64).copy()
 

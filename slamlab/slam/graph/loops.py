@@ -28,7 +28,7 @@ import numpy as np
 
 from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, wrap_angle
 from slamlab.slam.graph.branch_bound import CorrelativeSearch, SearchWindow, yaw_step_for
-from slamlab.slam.graph.submaps import FinishedSubmap, Submaps
+from slamlab.slam.graph.submaps import FIELD_CODES, FinishedSubmap, Submaps
 from slamlab.slam.matcher import field_search, score_field, voxel_filter
 from slamlab.slam.raycast import line_start, line_step
 
@@ -39,6 +39,7 @@ WEAK = "weak"  # the refined match fell below min_refined_score
 PENDING = "pending"
 INCONSISTENT = "inconsistent"  # no group of mutually consistent closures took it in time
 PRUNED = "pruned"  # accepted, then left far off by the optimised graph and dropped
+REFUTED = "refuted"  # a group that, optimised in, left earlier closures far off: taken out again
 
 WALL_MARGIN_M = 0.3  # a beam passing through a wall this close to its end (m) is not a contradiction
 AMBIGUITY_SEARCH = 0.9  # the second best is searched down to this share of the ambiguity ratio, then refined
@@ -75,6 +76,7 @@ class LoopCandidate:
     covariance: FloatArray = field(default_factory=lambda: np.diag([1.0, 1.0, 0.1]))  # of `relative`, node frame (m^2, rad^2)
     tied_m: float = 0.0  # how far (m of path) the node was from the submap since the graph last tied them
     along_line: bool = False  # as good elsewhere along a line (a corridor): its covariance holds nothing along it
+    in_group: bool = False  # accepted as one of a group of mutually consistent closures (not alone)
     see_through: float = 0.0  # share of the scan's beams that pass through the submap's walls at the match
     free_ends: float = 0.0  # share of its beams that end where the submap saw free space
 
@@ -108,6 +110,7 @@ class SearchSettings:
     ambiguity_m: float
     ambiguity_rad: float
     max_submaps: int
+    loop_min_path_m: float
 
 
 class LoopSearch:
@@ -125,23 +128,31 @@ class LoopSearch:
         self._fields: dict[int, np.ndarray] = {}  # float32 fields of the submaps refined lately
 
     def submaps_in_reach(self, pose: FloatArray, submaps: Submaps, anchors_global: FloatArray,
-                         windows: FloatArray, tied_m: FloatArray) -> list[tuple[FinishedSubmap, FloatArray, tuple[float, float], float]]:
+                         windows: FloatArray, tied_m: FloatArray, which: np.ndarray | None = None) -> list[tuple[FinishedSubmap, FloatArray, tuple[float, float], float]]:
         """(submap, the node's pose in the submap's frame, window) for the finished submaps
         whose known area their window (`windows` (S, 2): half width m, half yaw rad) around
         `pose` reaches, nearest first, at most `max_submaps`. `anchors_global` (S, 3): each
         finished submap's anchor's estimate; `tied_m` (S,): how far each is from the node since
-        the graph last tied them (m of path), carried with each."""
-        frames = se2_compose(anchors_global, se2_inverse(submaps.finished_anchor_local))  # submap frame -> global
+        the graph last tied them (m of path), carried with each; `which` (S,): the finished
+        submaps these rows are (default: all, in order)."""
+        idx = np.arange(len(submaps.finished)) if which is None else which
+        frames = se2_compose(anchors_global, se2_inverse(submaps.finished_anchor_local[idx]))  # submap frame -> global
         guess = se2_between(frames, pose)
-        d = np.hypot(guess[:, 0] - submaps.finished_center[:, 0], guess[:, 1] - submaps.finished_center[:, 1])
-        near = np.flatnonzero(d <= submaps.finished_radius + windows[:, 0])
-        near = near[np.argsort(d[near], kind="stable")][: self.s.max_submaps]
-        return [(submaps.finished[j], guess[j], (float(windows[j, 0]), float(windows[j, 1])), float(tied_m[j])) for j in near]
+        d = np.hypot(guess[:, 0] - submaps.finished_center[idx, 0], guess[:, 1] - submaps.finished_center[idx, 1])
+        near = np.flatnonzero(d <= submaps.finished_radius[idx] + windows[:, 0])
+        near = near[np.argsort(d[near], kind="stable")]
+        # loop candidates first: of the submaps in reach, the nearest not tied to the node for
+        # `loop_min_path_m` (where a loop can close), then the nearest tied ones (which confirm
+        # the local map); the nearest alone would almost always be the last few submaps
+        loop = near[tied_m[near] >= self.s.loop_min_path_m]
+        near = np.concatenate([loop[:1], near[~np.isin(near, loop[:1])]])[: self.s.max_submaps]
+        return [(submaps.finished[idx[j]], guess[j], (float(windows[j, 0]), float(windows[j, 1])), float(tied_m[j])) for j in near]
 
-    def search(self, node: int, pose: FloatArray, fine_pts: FloatArray, origin: FloatArray, reach: list[tuple[FinishedSubmap, FloatArray, tuple[float, float], float]],
+    def search(self, node: int, pose: FloatArray, fine_pts: FloatArray, own: FloatArray, origin: FloatArray, submaps: Submaps, reach: list[tuple[FinishedSubmap, FloatArray, tuple[float, float], float]],
                anchors_global: dict[int, FloatArray]) -> list[LoopCandidate]:
-        """Candidates of node `node` (estimate `pose`, scan points `fine_pts` (M, 2) body
-        frame, m, seen from the lidar at `origin` there) in the submaps `reach` (`submaps_in_reach`). Only matches above
+        """Candidates of node `node` (estimate `pose`, query points `fine_pts` (M, 2) in its
+        frame, m; its own scan's points `own`, seen from the lidar at `origin` there) in the
+        submaps `reach` (`submaps_in_reach`, of `submaps`). Only matches above
         `min_score` become candidates (with their status)."""
         t0 = time.perf_counter()
         s = self.s
@@ -151,9 +162,10 @@ class LoopSearch:
             return out
         yaw_step = yaw_step_for(pts, s.resolution_m)
         for sm, guess, (half_xy, half_yaw), tied in reach:
-            grid = sm.search_grid(s.resolution_m, s.levels)
+            grid = submaps.search_grid(sm, s.resolution_m, s.levels)
+            field_u8, state_u8 = submaps.arrays(sm)
             # the window, cut to the submap's area (the robot stood where the submap saw from)
-            H, W = sm.field_u8.shape
+            H, W = sm.shape
             lo = np.maximum(guess[:2] - half_xy, sm.origin)
             hi = np.minimum(guess[:2] + half_xy, sm.origin + np.array([W, H]) * sm.resolution_m)
             if np.any(hi < lo):
@@ -166,7 +178,7 @@ class LoopSearch:
             self.nodes_scored += best.nodes
             if not best.found:
                 continue
-            field = self._field(sm)
+            field = self._field(sm, field_u8)
             refined_pose, refined = self._refine(sm, field, best.pose, fine_pts)
             second = 0.0
             status = PENDING
@@ -184,14 +196,19 @@ class LoopSearch:
                         along = _along_line(refined_pose, other_pose, s.ambiguity_rad / 2)
                         if along is None:
                             status = AMBIGUOUS
-            through, free_end, _ = contradictions(sm.state_u8, sm.field_u8, float(sm.origin[0]), float(sm.origin[1]), 1.0 / sm.resolution_m,
+            through, free_end, _ = contradictions(state_u8, field_u8, float(sm.origin[0]), float(sm.origin[1]), 1.0 / sm.resolution_m,
                                                   float(refined_pose[0]), float(refined_pose[1]), float(refined_pose[2]),
-                                                  np.ascontiguousarray(fine_pts, dtype=np.float64), float(origin[0]), float(origin[1]),
+                                                  np.ascontiguousarray(own, dtype=np.float64), float(origin[0]), float(origin[1]),
                                                   int(round(WALL_MARGIN_M / sm.resolution_m)))
             anchor_pose = anchors_global[sm.anchor]
-            relative = se2_between(sm.anchor_local, refined_pose)
             cov = match_covariance(field, sm.origin, sm.resolution_m, refined_pose, fine_pts, self.sigma_m, self.sigma_rad)
-            if along is not None:  # no pull along the line of equally good poses (a corridor's length)
+            if along is not None:
+                # along the line of equally good poses (a corridor's length) the match says
+                # nothing: keep the estimate's place on it, and no weight there
+                refined_pose = refined_pose.copy()
+                refined_pose[:2] += float((guess[:2] - refined_pose[:2]) @ along) * along
+            relative = se2_between(sm.anchor_local, refined_pose)
+            if along is not None:
                 c, sn = np.cos(refined_pose[2]), np.sin(refined_pose[2])
                 u = np.array([c * along[0] + sn * along[1], -sn * along[0] + c * along[1]])  # in the node's frame
                 cov[:2, :2] += MAX_SIGMA_M**2 * np.outer(u, u)
@@ -199,16 +216,17 @@ class LoopSearch:
                 node=node, submap=sm.index, anchor=sm.anchor, relative=relative, score=best.score, refined=refined,
                 second=second, window_m=half_xy, node_pose=np.asarray(pose, dtype=np.float64).copy(),
                 match_pose=se2_compose(anchor_pose, relative), status=status,
-                covariance=cov, along_line=along is not None, see_through=through / max(len(fine_pts), 1), free_ends=free_end / max(len(fine_pts), 1), tied_m=tied,
+                covariance=cov, along_line=along is not None, see_through=through / max(len(own), 1), free_ends=free_end / max(len(own), 1), tied_m=tied,
             ))
         self.seconds += time.perf_counter() - t0
         return out
 
-    def _field(self, sm: FinishedSubmap) -> np.ndarray:
-        """The submap's field as float32 (kept for the last few submaps refined against)."""
+    def _field(self, sm: FinishedSubmap, field_u8: np.ndarray) -> np.ndarray:
+        """The submap's field as float32 values in [0, 1] (kept for the last few submaps
+        refined against)."""
         field = self._fields.get(sm.index)
         if field is None:
-            field = sm.field_float()
+            field = field_u8.astype(np.float32) * np.float32(1.0 / FIELD_CODES)
             self._fields[sm.index] = field
             while len(self._fields) > FIELD_CACHE:  # oldest first out
                 self._fields.pop(next(iter(self._fields)))

@@ -44,6 +44,7 @@ class GraphNoise:
     loop_sigma_rad: float
     loss: str  # cauchy | huber | none
     loss_scale: float
+    local_sigma_along_per_m: float = 0.0  # in the step's own direction, where larger than local_sigma_per_m
 
 
 @dataclass(frozen=True, slots=True)
@@ -105,9 +106,14 @@ class PoseGraph:
         rel = np.asarray(relative, dtype=np.float64).copy()
         nz = self.noise
         dist = float(np.hypot(rel[0], rel[1]))
-        sig = np.array([nz.local_sigma_m + nz.local_sigma_per_m * dist, nz.local_sigma_m + nz.local_sigma_per_m * dist,
-                        nz.local_sigma_rad + nz.local_sigma_per_rad * abs(float(rel[2]))])
-        cov = np.diag(sig**2) if slack is None else np.diag(sig**2) + slack
+        across = nz.local_sigma_m + nz.local_sigma_per_m * dist
+        along = nz.local_sigma_m + max(nz.local_sigma_along_per_m, nz.local_sigma_per_m) * dist
+        cov = np.diag([across**2, across**2, (nz.local_sigma_rad + nz.local_sigma_per_rad * abs(float(rel[2]))) ** 2])
+        if dist > 0 and along > across:  # the step's own direction: where a match down a corridor is least sure
+            u = rel[:2] / dist
+            cov[:2, :2] += (along**2 - across**2) * np.outer(u, u)
+        if slack is not None:
+            cov = cov + slack
         k = self.n
         self._x[k] = se2_compose(self._x[k - 1], rel)
         self.chain.append((rel, cov))
@@ -185,6 +191,12 @@ class PoseGraph:
         o = Optimisation(time.perf_counter() - t0, int(lm.iterations()), from_lago, moved)
         self.optimisations.append(o)
         return o
+
+    def restore(self, poses: FloatArray) -> None:
+        """Set every node's estimate to `poses` (N, 3) and restart ISAM2 from it (after a
+        trial the caller took back)."""
+        self._x[: self.n] = poses
+        self._restart()
 
     def loop_residuals(self, loops: np.ndarray) -> tuple[FloatArray, FloatArray]:
         """How far the current estimate is from each of `loops` (ids): (m, rad) arrays."""

@@ -40,7 +40,7 @@ from slamlab.geometry import FloatArray, se2_between, se2_compose
 from slamlab.io.table import Table
 from slamlab.slam.graph import GraphFilter
 from slamlab.slam.graph.local import LocalSlam
-from slamlab.slam.graph.loops import ACCEPTED, PRUNED, LoopCandidate, LoopSearch, SearchSettings, WindowPolicy
+from slamlab.slam.graph.loops import ACCEPTED, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings, WindowPolicy
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.submaps import Submaps
 from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, correction_fits
@@ -51,8 +51,12 @@ from slamlab.slam.result import SlamResult
 from slamlab.slam.scan import ScanBatch, ScanPoints, points_to_world, project_scans, range_limits, scan_to_points
 from slamlab.slam.steps import fill_between_steps
 
+WIDE_M = 5.0  # a search window wider than this (m, half width) ...
+WIDE_RAD = 0.5  # ... or this (rad) is a wide one (`filter.wide_every`)
 FAR_RAD_PER_M = 0.1  # a correction of far_m metres, or of far_m x this in yaw (rad), is a large one
 log = logging.getLogger(__name__)
+REFUTE_MIN = 3  # a group is refuted when it leaves more than this many earlier closures far off ...
+REFUTE_SHARE = 0.02  # ... and more than this share of them
 REFRESH_EVERY = 10  # every node's estimate read back from ISAM2 every this many nodes (the search windows'
 # submap placements, and the check of every closure against the estimate)
 
@@ -79,9 +83,9 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
     submaps = Submaps(ms, s.submap_nodes, matcher.field_sigma_m, matcher.field_radius_m)
     tracker = LocalSlam(matcher, ms, submaps, s.local_map, start, c.motion.scale_gain_per_m)
     graph = PoseGraph(start, GraphNoise(s.local_sigma_m, s.local_sigma_per_m, s.local_sigma_rad, s.local_sigma_per_rad,
-                                        s.loop_sigma_m, s.loop_sigma_rad, s.loss, s.loss_scale))
+                                        s.loop_sigma_m, s.loop_sigma_rad, s.loss, s.loss_scale, s.local_sigma_along_per_m))
     search = LoopSearch(SearchSettings(s.search_resolution_m, s.search_levels, s.min_score, s.min_refined_score,
-                                       s.ambiguity_ratio, s.ambiguity_m, s.ambiguity_rad, s.max_submaps_per_node),
+                                       s.ambiguity_ratio, s.ambiguity_m, s.ambiguity_rad, s.max_submaps_per_node, s.loop_min_path_m),
                         refine_step_m=ms.resolution_m, refine_levels=matcher.refine_levels + 1,
                         sigma_m=s.loop_sigma_m, sigma_rad=s.loop_sigma_rad)
     policy = WindowPolicy(s.window_m, s.window_per_m, s.window_max_m, s.window_yaw_rad, s.window_yaw_per_m)
@@ -122,19 +126,20 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
                 matched = tracker.match_online(se2_compose(online, since), batch)
                 between[js] = se2_between(online, matched)
         new: list[LoopCandidate] = []
+        fine = matcher.fine_points(pts)
+        tracker.remember(k, float(path_m[k]), fine, s.query_m)
         if submaps.finished and k % s.search_every == 0 and len(pts.xy):
-            new = _search_loops(k, pts, submaps, graph, search, policy, tied.drift(k, path_m), matcher)
+            query = tracker.query(ms.resolution_m) if s.query_m > 0 else fine
+            new = _search_loops(k, query, fine, pts.origin, submaps, graph, search, policy, tied.drift(k, path_m), s.wide_every)
             candidates.extend(new)
         accepted = verifier.offer(new, k, graph.poses, path_m, graph.active_ties)
         opt_s = 0.0
+        group = [c for c in accepted if c.in_group]
         for cand in accepted:
             cand.loop_id = graph.add_loop(cand.anchor, cand.node, cand.relative, cand.covariance)
             by_loop[cand.loop_id] = cand
-            tied.add_closure(cand.node, cand.anchor, path_m)
-        far = any(not correction_fits(c, graph.poses, s.far_m, s.far_m * FAR_RAD_PER_M) for c in accepted)
-        if far:  # the first return of a long loop: the whole graph from LAGO
-            opt_s = _optimise(graph, by_loop, s.prune_m, s.prune_rad, from_lago=True)
-            log.debug("node %d: far closures, the whole graph from LAGO (%.2f s)", k, opt_s)
+        if group:  # a correction: the whole graph with it, kept only if the closures before it still hold
+            opt_s = _try_group(graph, by_loop, group, s, k)
         else:
             graph.update()
             if k % REFRESH_EVERY == 0:
@@ -144,6 +149,9 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
                     graph.update()
                     graph.refresh()
                 opt_s = time.perf_counter() - t1
+        for cand in accepted:
+            if cand.status == ACCEPTED and not cand.along_line:  # a corridor match leaves the place along it open: no tie
+                tied.add_closure(cand.node, cand.anchor, path_m)
         if tracker.whole and _apart(graph.poses[k], tracker.online, s.redraw_m, s.redraw_rad):
             # the graph moved the robot away from where the online map has it: draw that map again from the graph
             t1 = time.perf_counter()
@@ -255,14 +263,24 @@ class TiedSubmaps:
         return path_m[k] + self.best
 
 
-def _search_loops(k: int, scan: ScanPoints, submaps: Submaps, graph: PoseGraph, search: LoopSearch, policy: WindowPolicy,
-                  drift_m: FloatArray, matcher: LikelihoodFieldMatcher) -> list[LoopCandidate]:
+def _search_loops(k: int, query: FloatArray, own: FloatArray, origin: FloatArray, submaps: Submaps, graph: PoseGraph, search: LoopSearch,
+                  policy: WindowPolicy, drift_m: FloatArray, wide_every: int) -> list[LoopCandidate]:
     """Node k's loop candidates in the finished submaps within their windows (`drift_m` (S,):
-    each submap's `TiedSubmaps` distance)."""
+    each submap's `TiedSubmaps` distance): the `query` points (node k's frame: its last metres
+    of scans, `LocalSlam.query`) searched and refined, node k's `own` scan points (seen from
+    `origin`) checked against the submap's free space. A wide window (over WIDE_M or WIDE_RAD:
+    tens of times the work of a narrow one) is searched only from every `wide_every`-th node."""
     anchors = submaps.finished_anchor
     poses = graph.poses
-    reach = search.submaps_in_reach(poses[k], submaps, poses[anchors], policy.at(drift_m), drift_m)
-    return search.search(k, poses[k], matcher.fine_points(scan), scan.origin, reach, {int(a): poses[a] for a in anchors})
+    windows = policy.at(drift_m)
+    wide = (windows[:, 0] > WIDE_M) | (windows[:, 1] > WIDE_RAD)
+    if k % wide_every:  # wide searches (a long loop's return) only from every `wide_every`-th node
+        windows = windows[~wide]
+        keep = np.flatnonzero(~wide)
+    else:
+        keep = np.arange(len(anchors))
+    reach = search.submaps_in_reach(poses[k], submaps, poses[anchors[keep]], windows, drift_m[keep], keep)
+    return search.search(k, poses[k], query, own, origin, submaps, reach, {int(a): poses[a] for a in anchors})
 
 
 def closures_table(candidates: list[LoopCandidate], graph: PoseGraph, node_times: FloatArray, final: FloatArray) -> Table:
@@ -299,6 +317,36 @@ def _apart(a: FloatArray, b: FloatArray, m: float, rad: float) -> bool:
     """Whether poses a and b differ by more than m metres or rad radians."""
     d = se2_between(a, b)
     return bool(np.hypot(d[0], d[1]) > m or abs(d[2]) > rad)
+
+
+def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[LoopCandidate], s, k: int) -> float:
+    """A group of closures asking for a correction, already added to the graph: the whole
+    graph optimised with them (from LAGO when the correction is large). If that leaves more
+    than REFUTE_SHARE of the closures the graph held before (at least REFUTE_MIN) far off,
+    the group contradicts what the graph already knew (a corridor matched a few doors off,
+    consistently): its closures are taken out (status `refuted`) and the estimate goes back.
+    Otherwise the closures the optimum leaves far off are pruned as usual. Returns seconds."""
+    t0 = time.perf_counter()
+    ids = {c.loop_id for c in group}
+    before = np.array([j for j in np.flatnonzero(graph.active) if j not in ids], dtype=np.int64)
+    kept = graph.poses.copy()
+    far = any(not correction_fits(c, kept, s.far_m, s.far_m * FAR_RAD_PER_M) for c in group)
+    graph.optimise_batch(from_lago=far)
+    dm, dr = graph.loop_residuals(before)
+    broken = int(((dm > s.prune_m) | (dr > s.prune_rad)).sum())
+    if broken > max(REFUTE_MIN, REFUTE_SHARE * len(before)):
+        for c in group:
+            graph.drop_loop(c.loop_id)
+            c.status = REFUTED
+        graph.restore(kept)
+        log.debug("node %d: a group of %d closures refuted: %d of %d earlier closures would break", k, len(group), broken, len(before))
+    else:
+        for _ in range(3):
+            if not _prune(graph, by_loop, s.prune_m, s.prune_rad):
+                break
+            graph.optimise_batch(from_lago=far)
+        log.debug("node %d: a group of %d closures in (%s; %d earlier closures off)", k, len(group), "from LAGO" if far else "LM", broken)
+    return time.perf_counter() - t0
 
 
 def _prune(graph: PoseGraph, by_loop: dict[int, LoopCandidate], prune_m: float, prune_rad: float) -> bool:

@@ -6,8 +6,8 @@ a submap is a log-odds grid with its likelihood field in that frame, built from 
 `submap_nodes / 2` nodes, every node goes into both active ones, and scans are matched against
 the older (fuller) one, so the robot is always inside a submap with at least half its scans.
 When a submap has all its nodes it is finished: its field is kept as one-byte codes over
-the cells it knows (a quarter of its float32 log-odds and field), and it becomes a target of
-the loop search.
+the cells it knows, with each cell's state (unknown, free, occupied), compressed (a few per
+cent of its float32 log-odds and field), and it becomes a target of the loop search.
 
 (With `overlap` off, one is active at a time: when local SLAM matches against a map of
 everything, the submaps are only the loop search's targets, and half the insertions do.)
@@ -19,7 +19,10 @@ optimisation is therefore free: they follow their anchors.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+import zlib
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -29,54 +32,77 @@ from slamlab.slam.graph.branch_bound import SearchGrid
 from slamlab.slam.scan import ScanPoints, points_to_world
 
 FIELD_CODES = 255.0  # a finished submap's field value v in [0, 1] is kept as round(255 v)
-UNKNOWN, FREE, OCCUPIED = 0, 1, 2  # a finished submap's cell states (`state_u8`)
+UNKNOWN, FREE, OCCUPIED = 0, 1, 2  # a finished submap's cell states
+UNPACKED = 8  # finished submaps kept unpacked at once (and their search grids)
 
 
 @dataclass(slots=True)
 class FinishedSubmap:
-    """A finished submap, as the loop search reads it: the likelihood field as one-byte codes
-    (`field_u8`, [H, W], row = y) over its known cells, with its origin (m, local frame) and
-    cell size (m); `anchor` its first node and `anchor_local` that node's local pose; `nodes`
-    the nodes it holds; `center` / `radius` (m, local frame) a circle around its known cells."""
+    """A finished submap, as the loop search reads it: over its known cells ([H, W], row = y;
+    origin (m, local frame), cell size (m)) the likelihood field as one-byte codes and the
+    cells' states (UNKNOWN, FREE, OCCUPIED), kept zlib-compressed (`packed`: a building's
+    submaps are mostly unknown cells; `Submaps.arrays` unpacks the few in use); `anchor` its
+    first node and `anchor_local` that node's local pose; `nodes` the nodes it holds;
+    `center` / `radius` (m, local frame) a circle around its known cells."""
 
     index: int
     anchor: int
     anchor_local: FloatArray
     nodes: tuple[int, int]
-    field_u8: np.ndarray
-    state_u8: np.ndarray  # per cell: UNKNOWN, FREE or OCCUPIED (the log-odds' sign), as `field_u8`
+    shape: tuple[int, int]
+    packed: bytes
     origin: FloatArray
     resolution_m: float
     center: FloatArray
     radius: float
-    _search: dict = field(default_factory=dict)  # search grids by (cell m, levels), made on first use
 
     @property
     def nbytes(self) -> int:
-        return int(self.field_u8.nbytes + self.state_u8.nbytes + sum(g.nbytes for g in self._search.values()))
+        return len(self.packed)
 
-    def field_float(self) -> np.ndarray:
-        """The field as float32 values in [0, 1] (for the refinement's hill climb)."""
-        return self.field_u8.astype(np.float32) * np.float32(1.0 / FIELD_CODES)
+    @staticmethod
+    def pack(field_u8: np.ndarray, state_u8: np.ndarray) -> bytes:
+        return zlib.compress(np.stack([field_u8, state_u8]).tobytes(), 1)
 
-    def search_grid(self, search_res_m: float, levels: int) -> SearchGrid:
-        """The branch-and-bound grid: the field max-pooled over blocks of whole cells to about
-        `search_res_m` (the largest value in each block: a point the search places in a block
-        scores what its best spot in the block would), with its `levels` precomputed grids.
-        Made once and kept."""
-        f = max(int(round(search_res_m / self.resolution_m)), 1)
-        key = (f, int(levels))
-        if key not in self._search:
-            H, W = self.field_u8.shape
-            Hc, Wc = -(-H // f), -(-W // f)
-            padded = np.zeros((Hc * f, Wc * f), dtype=np.uint8)
-            padded[:H, :W] = self.field_u8
-            coarse = padded.reshape(Hc, f, Wc, f).max(axis=(1, 3))
-            self._search[key] = SearchGrid.of(coarse, (float(self.origin[0]), float(self.origin[1])), f * self.resolution_m, levels)
-        return self._search[key]
+    def unpack(self) -> tuple[np.ndarray, np.ndarray]:
+        """(field codes, cell states), each uint8 [H, W]."""
+        both = np.frombuffer(zlib.decompress(self.packed), dtype=np.uint8).reshape(2, *self.shape)
+        return both[0], both[1]
 
-    def drop_search_grids(self) -> None:
-        self._search.clear()
+
+class _Recent(OrderedDict):
+    """A dict keeping its `size` most recently used entries."""
+
+    def __init__(self, size: int) -> None:
+        super().__init__()
+        self.size = size
+
+    def get_or_make(self, key: object, make: Callable[[], object]) -> object:
+        if key in self:
+            self.move_to_end(key)
+            return self[key]
+        value = make()
+        self[key] = value
+        while len(self) > self.size:
+            self.popitem(last=False)
+        return value
+
+    @property
+    def nbytes(self) -> int:
+        return sum(sum(a.nbytes for a in v) if isinstance(v, tuple) else v.nbytes for v in self.values())
+
+
+def search_grid_of(field_u8: np.ndarray, origin: FloatArray, res_m: float, search_res_m: float, levels: int) -> SearchGrid:
+    """The branch-and-bound grid of a submap's field: max-pooled over blocks of whole cells to
+    about `search_res_m` (the largest value in each block: a point the search places in a block
+    scores what its best spot in the block would), with its `levels` precomputed grids."""
+    f = max(int(round(search_res_m / res_m)), 1)
+    H, W = field_u8.shape
+    Hc, Wc = -(-H // f), -(-W // f)
+    padded = np.zeros((Hc * f, Wc * f), dtype=np.uint8)
+    padded[:H, :W] = field_u8
+    coarse = padded.reshape(Hc, f, Wc, f).max(axis=(1, 3))
+    return SearchGrid.of(coarse, (float(origin[0]), float(origin[1])), f * res_m, levels)
 
 
 @dataclass(slots=True)
@@ -111,6 +137,20 @@ class Submaps:
         self.finished_anchor_local = np.zeros((0, 3))
         self.finished_center = np.zeros((0, 2))
         self.finished_radius = np.zeros(0)
+        # the few finished submaps in use, unpacked, and their search grids (a revisit searches
+        # the same few submaps node after node)
+        self._arrays = _Recent(UNPACKED)
+        self._grids = _Recent(UNPACKED)
+        self._packed_bytes = 0
+
+    def arrays(self, sm: FinishedSubmap) -> tuple[np.ndarray, np.ndarray]:
+        """A finished submap's (field codes, cell states), unpacked (kept for the last few)."""
+        return self._arrays.get_or_make(sm.index, sm.unpack)  # type: ignore[return-value]
+
+    def search_grid(self, sm: FinishedSubmap, search_res_m: float, levels: int) -> SearchGrid:
+        """A finished submap's branch-and-bound grid (`search_grid_of`; kept for the last few)."""
+        return self._grids.get_or_make((sm.index, search_res_m, levels),  # type: ignore[return-value]
+                                       lambda: search_grid_of(self.arrays(sm)[0], sm.origin, sm.resolution_m, search_res_m, levels))
 
     def matching(self) -> ActiveSubmap:
         """The submap scans are matched against: the oldest active one."""
@@ -162,11 +202,12 @@ class Submaps:
         origin = g.origin + np.array([c0, r0]) * g.res
         size = np.array([c1 - c0, r1 - r0]) * g.res
         f = FinishedSubmap(
-            index=s.index, anchor=s.anchor, anchor_local=s.anchor_local, nodes=(s.anchor, last_node),
-            field_u8=np.ascontiguousarray(codes), state_u8=np.ascontiguousarray(state), origin=origin, resolution_m=g.res,
+            index=s.index, anchor=s.anchor, anchor_local=s.anchor_local, nodes=(s.anchor, last_node), shape=codes.shape,
+            packed=FinishedSubmap.pack(codes, state), origin=origin, resolution_m=g.res,
             center=origin + size / 2, radius=float(np.hypot(*size) / 2),
         )
         self.finished.append(f)
+        self._packed_bytes += f.nbytes
         self.finished_anchor = np.append(self.finished_anchor, f.anchor)
         self.finished_anchor_local = np.vstack([self.finished_anchor_local, f.anchor_local])
         self.finished_center = np.vstack([self.finished_center, f.center])
@@ -174,5 +215,6 @@ class Submaps:
         return f
 
     def memory_mb(self) -> float:
+        """MB held: the active submaps' grids, the finished ones packed, and those unpacked."""
         active = sum(s.grid.log_odds.nbytes + (s.grid.field.nbytes if s.grid.field is not None else 0) for s in self.active)
-        return (active + sum(f.nbytes for f in self.finished)) / 1e6
+        return (active + self._packed_bytes + self._arrays.nbytes + self._grids.nbytes) / 1e6

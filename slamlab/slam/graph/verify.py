@@ -195,12 +195,16 @@ class ClosureVerifier:
         self.pending = keep
         if changed and len({c.node for c in self.pending}) >= s.group_size:
             group = [self.pending[v] for v in max_clique(consistency_matrix(self.pending, poses, path_m, s, ties))]
-            spread = np.ptp([path_m[c.node] for c in group]) if group else 0.0
-            if len({c.node for c in group}) >= s.group_size and spread >= s.group_extent_m:
+            # a corridor match agrees with anything along the corridor: it cannot vouch for a
+            # match that asks to move along it, so where the group has full matches only they count
+            full = [c for c in group if not c.along_line] or group
+            spread = np.ptp([path_m[c.node] for c in full]) if full else 0.0
+            if len({c.node for c in full}) >= s.group_size and spread >= s.group_extent_m:
                 log.debug("node %d: a group of %d closures enters (nodes %s, submaps %s, moves %s m)", node, len(group),
                           [c.node for c in group], [c.submap for c in group], [round(float(np.hypot(*correction(c, poses)[:2])), 2) for c in group])
                 for c in group:
                     c.status = ACCEPTED
+                    c.in_group = True
                 accepted.extend(group)
                 self.pending = [c for c in self.pending if c.status == PENDING]
         return accepted
