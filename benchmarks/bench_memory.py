@@ -13,6 +13,9 @@ Three numbers per row:
    from `wait4`, what `/usr/bin/time -f %M` prints), from a plain run. This is what the budget
    is about. It counts what the process touched of its shared libraries' files as well as
    its own (anonymous) memory, so the table also gives both parts at the peak phase.
+   `import floor` is a fresh process that only imports every module the run had imported
+   by its end (no data, no kernel loaded): the part of the peak that is code, with the
+   resident pages of libllvmlite.so (numba's LLVM, loaded by `import numba`) apart.
 2. Per phase (import, config, setup, read, filter, metrics, files, texture, report), from a
    second, probed run: the peak resident size reached during that phase (Linux's high-water
    mark VmHWM, reset when each phase starts through /proc/self/clear_refs: exact, however
@@ -105,12 +108,43 @@ def measure_row(name: str, args: list[str], tmp: Path, holders: int, probe: bool
         out = tmp / f"{name}-rss.json"
         _run(slamlab_cmd(args, tmp / f"{name}-rss", ["--probe", str(out)]), tmp, env)
         row["phases"] = json.loads(out.read_text())
+        row["floor"] = import_floor(row["phases"]["modules"], tmp / f"{name}-floor.json", env)
     if holders:
         out = tmp / f"{name}-holders.json"
         _run(slamlab_cmd(args, tmp / f"{name}-holders", ["--probe", str(out), "--memray", str(tmp / f"{name}-memray"),
                                                           "--holders", str(holders)]), tmp, env)
         row["holders"] = json.loads(out.read_text())["holders"]
     return row
+
+
+FLOOR_SCRIPT = """
+import importlib, json, re, sys, warnings
+warnings.simplefilter("ignore")
+out = sys.argv[1]
+for name in json.load(open(out)):
+    try:
+        importlib.import_module(name)
+    except BaseException:
+        pass
+status = open("/proc/self/status").read()
+mb = {k: int(re.search(rf"^{k}:\\s+(\\d+)", status, re.M).group(1)) / 1024 for k in ("VmHWM", "RssAnon", "RssFile")}
+llvm, current = 0, ""
+for line in open("/proc/self/smaps"):
+    if re.match(r"^[0-9a-f]+-[0-9a-f]+ ", line):
+        current = line
+    elif line.startswith("Rss:") and "libllvmlite" in current:
+        llvm += int(line.split()[1]) / 1024
+json.dump({**mb, "llvmlite": llvm}, open(out, "w"))
+"""
+
+
+def import_floor(modules: list[str], path: Path, env: dict[str, str]) -> dict:
+    """The floor of a run: a fresh process that imports every module the run had imported by
+    its end (its code, NumPy's, numba's and LLVM's, matplotlib's, ...) and does nothing else:
+    its peak (MB), resident file-backed and anonymous parts, and libllvmlite's share."""
+    path.write_text(json.dumps(modules))
+    _run([sys.executable, "-c", FLOOR_SCRIPT, str(path)], path.parent, env)
+    return json.loads(path.read_text())
 
 
 def measure_make_test(tmp: Path) -> dict:
@@ -276,7 +310,9 @@ def probe(out: Path, memray_dir: Path | None, holders: int, argv: list[str]) -> 
     finally:
         p.set("exit")
         p.leave()
-        result = {"peak": p.peak, "end": p.end, "process_peak": p.process_peak}
+        skip = ("__main__", "bench_memory")
+        result = {"peak": p.peak, "end": p.end, "process_peak": p.process_peak,
+                  "modules": sorted(m for m in sys.modules if m not in skip and not m.startswith("memray"))}
         if memray_dir is not None:
             result["holders"] = holders_of(p.captures, holders)
         out.write_text(json.dumps(result))
@@ -362,8 +398,9 @@ def main() -> None:
 
 
 def print_tables(results: dict[str, dict]) -> None:
-    print("| run | peak MB (whole process) | budget MB | met | peak phase | its file / anon MB at end |")
-    print("| --- | --- | --- | --- | --- | --- |")
+    print("| run | peak MB (whole process) | budget MB | met | peak phase (MB) | its file / anon MB at end "
+          "| import floor MB (file / anon; libllvmlite) |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
     for name, r in results.items():
         budget = MAKE_TEST_BUDGET_MB if name == "make_test" else ROWS[name][1]
         ph = r.get("phases")
@@ -373,8 +410,10 @@ def print_tables(results: dict[str, dict]) -> None:
             where = f"{top} ({ph['peak'][top]:.0f})", f"{end.get('file', float('nan')):.0f} / {end.get('anon', float('nan')):.0f}"
         else:
             where = ("-", "-")
+        fl = r.get("floor")
+        floor = f"{fl['VmHWM']:.0f} ({fl['RssFile']:.0f} / {fl['RssAnon']:.0f}; {fl['llvmlite']:.0f})" if fl else "-"
         met = "-" if budget is None else ("yes" if r["peak_mb"] <= budget else "no")
-        print(f"| {name} | {r['peak_mb']:.0f} | {'-' if budget is None else f'{budget:.0f}'} | {met} | {where[0]} | {where[1]} |")
+        print(f"| {name} | {r['peak_mb']:.0f} | {'-' if budget is None else f'{budget:.0f}'} | {met} | {where[0]} | {where[1]} | {floor} |")
     probed = {k: r["phases"] for k, r in results.items() if r.get("phases")}
     if probed:
         print("\nPeak resident MB reached in each phase (probed run; resident file-backed / anonymous MB when it ended):")
