@@ -8,7 +8,7 @@ row's preset can be changed or a row added (e.g. one with `filter=graph`) in one
 `--set` adds an override to every row. `make_test` (not run by default: ~6 min) is the test
 suite, `pytest` as `make test` runs it, for its largest process.
 
-Three numbers per row:
+Per row:
 1. `peak MB`: the kernel's peak resident set size of the whole `slamlab` process (`ru_maxrss`
    from `wait4`, what `/usr/bin/time -f %M` prints), from a plain run. This is what the budget
    is about. It counts what the process touched of its shared libraries' files as well as
@@ -34,8 +34,10 @@ every allocation, whichever allocator made it: numba's NRT arrays (a kernel's ou
 Agg's and Pillow's image buffers, LLVM, as well as Python objects and NumPy arrays; stdlib
 `tracemalloc` sees only the last two (Python's allocator and NumPy's traced buffers), and only
 as a current snapshot, so a phase's transient peak (a figure rendered and freed) is lost.
-memray reports bytes allocated (an `np.zeros` page never touched counts), and neither tool
-sees a shared library's code pages: those are the RSS columns' `file MB`. memray is in the
+memray reports bytes allocated, touched or not: OpenBLAS's 32 MB work buffer, mapped at the
+first matrix product (`scan.py`'s or the Kinect calibration's) and hardly touched, shows as a
+32 MB holder, and so does an `np.empty` sized for the worst case. Neither tool sees a shared
+library's code pages: those are the RSS columns' file-backed MB. memray is in the
 `dev` extra; without it the holders table is skipped.
 
 Run each row once before measuring (numba compiles kernels on a checkout's first run, and
@@ -237,8 +239,6 @@ class PhaseProbe:
 
 def probe(out: Path, memray_dir: Path | None, holders: int, argv: list[str]) -> None:
     """Run `slamlab argv` in this process, phase by phase (see the module doc)."""
-    import threading
-
     if memray_dir is not None:
         memray_dir.mkdir(parents=True, exist_ok=True)
     p = PhaseProbe(memray_dir)
@@ -316,7 +316,6 @@ def probe(out: Path, memray_dir: Path | None, holders: int, argv: list[str]) -> 
         if memray_dir is not None:
             result["holders"] = holders_of(p.captures, holders)
         out.write_text(json.dumps(result))
-    del threading
 
 
 def _where(stack: list[tuple[str, str, int]]) -> str:

@@ -33,7 +33,7 @@ from slamlab.io.run_metrics import STATUS_FAILED, STATUS_INTERRUPTED, RunMetrics
 from slamlab.io.rundir import FirstScan, ParticleRecord, RunDirectory, RunFile, TrajectoryKind
 from slamlab.io.table import Table
 from slamlab.manifest import build_manifest
-from slamlab.heap import keep_large_blocks_mapped, release_freed_memory
+from slamlab.heap import release_freed_memory
 from slamlab.memory import RunPeakMemory
 from slamlab.progress import make_progress
 from slamlab.slam.result import SlamResult
@@ -316,7 +316,6 @@ def run_pipeline(
     claim_run_dir(run_dir)
     t0 = time.perf_counter()
     cpu0 = time.process_time()  # CPU s of this process: comparable when jobs share the cores
-    keep_large_blocks_mapped()  # large arrays return to the system when freed (slamlab.heap)
     memory = RunPeakMemory()  # this run's own peak, also when a sweep runs many in one process
     stopper: StopOnSigint | None = None
     metrics: RunMetrics | None = None
