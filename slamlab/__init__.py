@@ -12,6 +12,15 @@ __version__ = "0.1.0"
 # OpenMP runtime; a value the user exported wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+# NumPy asks the kernel for 2 MB pages (madvise MADV_HUGEPAGE) on every array of 4 MB or
+# more. An array written in a few places then costs 2 MB for each 4 kB page touched: the RBPF
+# map update's flip lists (one row per particle, sized for the worst case, a few entries
+# used: 100 particles of the hard simulated world held ~200 MB of RSS for ~1 MB written),
+# the texture accumulators over a mostly unseen grid. Off, memory follows what is written;
+# a value the user exported wins (read when NumPy is first imported, which in a slamlab
+# process is after this line).
+os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
+
 
 def _load_tbb() -> None:
     """Make numba's parallel kernels run on Intel TBB (the `tbb` wheel, a dependency).

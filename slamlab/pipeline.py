@@ -33,6 +33,7 @@ from slamlab.io.run_metrics import STATUS_FAILED, STATUS_INTERRUPTED, RunMetrics
 from slamlab.io.rundir import FirstScan, ParticleRecord, RunDirectory, RunFile, TrajectoryKind
 from slamlab.io.table import Table
 from slamlab.manifest import build_manifest
+from slamlab.heap import release_freed_memory
 from slamlab.memory import RunPeakMemory
 from slamlab.progress import make_progress
 from slamlab.slam.result import SlamResult
@@ -308,6 +309,7 @@ def run_pipeline(
     from slamlab.eval.consistency import consistency_metrics
     from slamlab.assemble import assemble  # builds the components: imports the numba kernels
     from slamlab.slam.engine import run_slam
+    from slamlab.texture.pipeline import texture_enabled
 
     run_dir = Path(run_dir)
     run = RunDirectory(run_dir)
@@ -323,6 +325,12 @@ def run_pipeline(
         setup = assemble(cfg)  # every component built and checked once, before any work
         seq = load_sequence(cfg.dataset)
         log.info("dataset %s: %d scans, %s RGB-D frames", seq.name, len(seq), seq.rgbd_count if seq.rgbd else "no")
+        texture_on = texture_enabled(seq, setup.texture)
+        if not texture_on and seq.ground_truth is not None:
+            # only the texture stage reads the true floor texture and the ground labels (the
+            # hard simulated world's: 38 MB): not held through a run without it
+            seq.ground_truth = replace(seq.ground_truth, floor_texture=None, ground_labels={})
+        release_freed_memory()  # what reading freed (a THOR log's loadmat: ~130 MB), before the filter
         reporter = make_progress(progress, label="SLAM") if not callable(progress) else progress
         stopper = StopOnSigint(reporter)
         cpu_slam0 = time.process_time()
@@ -333,6 +341,7 @@ def run_pipeline(
             if hasattr(reporter, "close"):
                 reporter.close()
         cpu_slam = time.process_time() - cpu_slam0
+        release_freed_memory()  # the particles' maps and the filter's work arrays
 
         # SLAM results first: whatever happens to texture afterwards, these are kept. The map's
         # PNG (seconds on a building: one zlib stream, Pillow lets go of the GIL) is written on
@@ -369,9 +378,7 @@ def run_pipeline(
         if stopper.requested:
             raise KeyboardInterrupt
 
-        from slamlab.texture.pipeline import texture_enabled
-
-        if texture_enabled(seq, setup.texture):
+        if texture_on:
             try:
                 metrics.texture = run_texture_stage(seq, result, setup, run_dir)
             except Exception as exc:  # keep SLAM results; say what went wrong
@@ -384,6 +391,7 @@ def run_pipeline(
         metrics.peak_memory_mb = memory.peak_mb()
         metrics.peak_memory_scope = memory.scope
         run.write_metrics(metrics)
+        release_freed_memory()  # the report (in the CLI) or a sweep's next run starts from what is held
     except KeyboardInterrupt:
         memory.peak_mb()  # stops its sampling thread, if any
         artifacts.remove_partials(run_dir)

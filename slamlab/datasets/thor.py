@@ -34,7 +34,8 @@ from slamlab import robot
 from slamlab.datasets.calibration import load_kinect_calibration
 from slamlab.datasets.stamps import nearest_index
 from slamlab.errors import DataError
-from slamlab.frames import KinectCalibration, ScanFrame, Sequence
+from slamlab.frames import KinectCalibration, LazyScans, ScanFrame, Sequence
+from slamlab.heap import release_freed_memory
 from slamlab.geometry import wrap_angle
 from slamlab.config.datasets import ThorDatasetConfig
 
@@ -51,13 +52,14 @@ CALIBRATION_SUBDIR = "cameraParam"
 # --------------------------------------------------------------------------- .mat access
 
 
-def loadmat_checked(path: Path, cell_var: str | None = None) -> dict:
+def loadmat_checked(path: Path, cell_var: str | None = None, variable_names: list[str] | None = None) -> dict:
     """`scipy.io.loadmat` with user-facing errors for missing, truncated or v7.3 files;
-    for a damaged file holding cell variable `cell_var`, the error names the first bad record."""
+    for a damaged file holding cell variable `cell_var`, the error names the first bad record.
+    `variable_names`: read only these (a variable the file lacks is then not in the dict)."""
     if not path.is_file():
         raise DataError(path, "file not found")
     try:
-        return scipy.io.loadmat(path)
+        return scipy.io.loadmat(path, variable_names=variable_names)
     except NotImplementedError:  # scipy's message for HDF5-based MAT v7.3 files
         raise DataError(path, "MATLAB v7.3 (HDF5) files are not supported: re-save with save(..., '-v7')") from None
     except Exception as exc:  # noqa: BLE001 - scipy raises many types for corrupt files
@@ -144,8 +146,12 @@ def read_lidar_mat(path: str | Path) -> LidarLog:
     cell = mat["lidar"]
     if not isinstance(cell, np.ndarray) or cell.dtype != object:
         raise DataError(path, f"expected a 1xN cell array, got {getattr(cell, 'dtype', type(cell))}", field="lidar")
-    items = cell.reshape(-1)
-    n = items.size
+    # each record is let go of once read (below): the file's records (~190 MB of arrays and
+    # objects for the hard simulated world's 27,560 scans) and the scans copied out of them
+    # are then not both held at once
+    items = list(cell.reshape(-1))
+    del mat, cell
+    n = len(items)
     if n == 0:
         raise DataError(path, "log is empty (0 records)", field="lidar")
 
@@ -155,9 +161,10 @@ def read_lidar_mat(path: str | Path) -> LidarLog:
     rpy = np.empty((n, 3))
     scans = np.empty((n, N_BEAMS), dtype=np.float32)
     ucsd: bool | None = None
-    for i, item in enumerate(items):
+    for i in range(n):
         rid = f"record {i}"
-        rec = _record_struct(item, path, rid)
+        rec = _record_struct(items[i], path, rid)
+        items[i] = None
         names = rec.dtype.names
         nf = len(names)
         if nf in (5, 6):
@@ -243,10 +250,12 @@ class JointLog:
 def read_joint_mat(path: str | Path) -> JointLog:
     """Read `train_jointK.mat`: `ts` 1xM, `head_angles` 2xM (required), `rpy` 3xM (optional)."""
     path = Path(path)
-    mat = loadmat_checked(path)
+    # only what is used: a THOR joint file also holds every joint's position, the IMU's rates
+    # and the feet's forces (32 MB for the hard simulated world, 3 MB of them read)
+    mat = loadmat_checked(path, variable_names=["ts", "head_angles", "rpy"])
     for key in ("ts", "head_angles"):
         if key not in mat:
-            found = sorted(k for k in mat if not k.startswith("__"))
+            found = sorted(name for name, _, _ in scipy.io.whosmat(path))
             raise DataError(path, f"variable missing (found: {found})", field=key)
     ts = np.asarray(mat["ts"], dtype=np.float64)
     if ts.ndim != 2 or ts.shape[0] != 1:
@@ -312,6 +321,7 @@ def load_thor(
             raise DataError(p, f"file not found (folder has: {have}; for the test log pass {alt})")
 
     lidar = read_lidar_mat(lidar_path)
+    release_freed_memory()  # loadmat's records, freed in small blocks (~130 MB for 27,560 scans)
     joint = read_joint_mat(joint_path)
 
     j = joint.nearest(lidar.t)
@@ -336,7 +346,7 @@ def load_thor(
         warnings.warn(f"{lidar_path}: {n_bad} negative, NaN or inf ranges in "
                       f"{int(np.count_nonzero(~possible.all(axis=1)))} scans dropped as invalid beams", stacklevel=2)
         scans = np.where(possible, scans, np.float32(0.0))
-    valid = possible & (scans >= MIN_RANGE_M) & (scans < MAX_RANGE_M)
+    del possible  # a frame's valid beams: MIN_RANGE_M <= r < MAX_RANGE_M, computed with the frame (`_LidarFrames`)
 
     if lidar.rpy is not None:
         roll, pitch = lidar.rpy[:, 0], lidar.rpy[:, 1]
@@ -345,33 +355,28 @@ def load_thor(
     else:
         roll = pitch = np.zeros(len(lidar))
 
-    angle_cache: dict[float, np.ndarray] = {}
-    frames: list[ScanFrame] = []
+    angle_cache: dict[float, int] = {}
+    angle_sets: list[np.ndarray] = []
+    angle_of = np.empty(len(lidar), dtype=np.int64)
+    mounts = np.empty((len(lidar), 4, 4))
     head = joint.head_angles
     for i in range(len(lidar)):
         res = float(lidar.res[i])
-        angles = angle_cache.get(res)
-        if angles is None:
-            angles = angle_cache[res] = beam_angles(res)
+        if res not in angle_cache:
+            angle_cache[res] = len(angle_sets)
+            angle_sets.append(beam_angles(res))
+        angle_of[i] = angle_cache[res]
         k = j[i]
-        frames.append(
-            ScanFrame(
-                index=i,
-                t=float(lidar.t[i]),
-                odom=lidar.odom[i],
-                ranges=scans[i],
-                angles=angles,
-                valid=valid[i],
-                lidar_to_body=robot.lidar_to_body(float(head[0, k]), float(head[1, k])),
-                roll=float(roll[i]),
-                pitch=float(pitch[i]),
-            )
-        )
+        mounts[i] = robot.lidar_to_body(float(head[0, k]), float(head[1, k]))
+    times = np.array(lidar.t, dtype=np.float64)
+    frames = _LidarFrames(scans, lidar.odom, times, angle_sets, angle_of, mounts,
+                          np.asarray(roll, dtype=np.float64), np.asarray(pitch, dtype=np.float64))
+    times.flags.writeable = False
 
     calibration = _find_calibration(root, calibration_dir)
     seq = Sequence(
         name=name or f"thor-{lidar_path.stem}",
-        scans=frames,
+        scans=LazyScans(frames, np.arange(len(lidar)), times, lidar.odom),
         body_height_m=robot.COM_HEIGHT_M,
         sources=[str(lidar_path.resolve()), str(joint_path.resolve())],
         calibration=calibration,
@@ -386,6 +391,37 @@ def load_thor(
         seq.rgbd_count = stream.count
         seq.sources.extend(str(p.resolve()) for p in stream.files)
     return seq
+
+
+class _LidarFrames:
+    """Scan i of a THOR log as a `ScanFrame` made when asked for (`LazyScans`): views into the
+    log's arrays, its valid beams computed then. Why: a frame object, its valid mask and its
+    mount matrix per scan held ~50 MB for the 27,560 scans of the hard simulated world
+    (`+experiment=sim_loops`), for values the arrays hold anyway.
+
+    `ranges` (N, 1081) float32 m with NaN, inf and negative readings already 0, so a beam is
+    valid exactly when MIN_RANGE_M <= r < MAX_RANGE_M (what `load_thor` computed for all
+    scans at once before); `mounts` (N, 4, 4) each scan's `robot.lidar_to_body`."""
+
+    def __init__(self, ranges: np.ndarray, odom: np.ndarray, times: np.ndarray, angle_sets: list[np.ndarray],
+                 angle_of: np.ndarray, mounts: np.ndarray, roll: np.ndarray, pitch: np.ndarray) -> None:
+        self.ranges, self.odom, self.times = ranges, odom, times
+        self.angle_sets, self.angle_of, self.mounts = angle_sets, angle_of, mounts
+        self.roll, self.pitch = roll, pitch
+
+    def __call__(self, i: int) -> ScanFrame:
+        r = self.ranges[i]
+        return ScanFrame(
+            index=i,
+            t=float(self.times[i]),
+            odom=self.odom[i],
+            ranges=r,
+            angles=self.angle_sets[self.angle_of[i]],
+            valid=(r >= MIN_RANGE_M) & (r < MAX_RANGE_M),
+            lidar_to_body=self.mounts[i],
+            roll=float(self.roll[i]),
+            pitch=float(self.pitch[i]),
+        )
 
 
 def _find_calibration(root: Path, calibration_dir: str | Path | None) -> KinectCalibration | None:

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from slamlab.heap import release_freed_memory
 from slamlab.io.png import grey_rgba
 from slamlab.io.table import Table
 from slamlab.report.mpl import Figure, colormaps  # headless, without docstring tables (mpl.py)
@@ -56,6 +57,9 @@ def fig_to_data_uri(fig: Figure, dpi: int = DPI, fmt: str = "png") -> str:
     `fmt="jpeg"` for figures made of photos (camera frames), where PNG would be 5x larger."""
     buf = io.BytesIO()
     fig.savefig(buf, format=fmt, dpi=dpi, bbox_inches="tight", **({"pil_kwargs": {"quality": 85}} if fmt == "jpeg" else {}))
+    # rendering makes arrays of the output's size (a map: 10-15 MB each) that glibc keeps
+    # resident once freed; given back here, the next figure does not add to them (slamlab.heap)
+    release_freed_memory()
     return f"data:image/{fmt};base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 

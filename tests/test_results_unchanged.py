@@ -1,0 +1,151 @@
+"""Memory work must not change a result (issue 44): the whole Intel `lidar2d` run and the
+default simulated run (`make run`'s, texture included) give, file by file, the results of
+main e5c8188, before the memory work.
+
+Each result file of the run folder (`run_compare.result_files`: everything but the records,
+i.e. manifest, logs, report, .hydra/) is reduced to a sha256 of what `slamlab-verify`
+compares: arrays of an .npz (names, dtypes, shapes, bytes; the zip's own bytes carry dates),
+metrics.json and steps.csv without the timing and memory figures (`run_compare.VOLATILE`),
+every other file's bytes. `RESULTS_BEFORE` holds those digests as e5c8188 wrote them, made by
+this file's `main` with that commit's code first on the path:
+
+    git worktree add /tmp/old e5c8188   # or: git archive e5c8188 | tar -x -C /tmp/old
+    cd /tmp && SLAMLAB_DATA_DIR=... PYTHONPATH=/tmp/old python /path/to/tests/test_results_unchanged.py OUT.json
+
+(the working folder must not be a checkout: `python` puts it first on the path).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+RESULTS_BEFORE = Path(__file__).with_name("results_e5c8188.json")
+
+
+def runs(data: Path | None) -> dict[str, list[str]]:
+    """The runs compared, as `slamlab` arguments (no report: it is a record, not a result)."""
+    out = {"sim": ["report=false"]}
+    if data is not None:
+        out["intel"] = ["+experiment=lidar2d", f"dataset.path={data / 'carmen' / 'intel.clf.bz2'}", "report=false"]
+    return out
+
+
+def _without_volatile(d: object, volatile) -> object:
+    if isinstance(d, dict):
+        return {k: _without_volatile(v, volatile) for k, v in d.items() if not volatile.search(str(k))}
+    return d
+
+
+def file_digest(path: Path) -> str:
+    """sha256 of what a re-run must reproduce of one result file (module doc)."""
+    from slamlab.io.rundir import RunFile
+    from slamlab.run_compare import VOLATILE
+
+    h = hashlib.sha256()
+    if path.suffix == ".npz":
+        with np.load(path) as z:
+            for key in sorted(z.files):
+                a = z[key]
+                h.update(f"{key} {a.dtype.str} {a.shape}\n".encode())
+                h.update(np.ascontiguousarray(a).tobytes())
+    elif path.name == RunFile.METRICS:
+        kept = _without_volatile(json.loads(path.read_text()), VOLATILE)
+        h.update(json.dumps(kept, sort_keys=True).encode())
+    elif path.name == RunFile.STEPS_CSV:
+        rows = list(csv.reader(io.StringIO(path.read_text())))
+        keep = [i for i, name in enumerate(rows[0]) if not VOLATILE.search(name)]
+        for row in rows:
+            h.update((",".join(row[i] for i in keep) + "\n").encode())
+    else:
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def run_digests(run_dir: Path) -> dict[str, str]:
+    from slamlab.run_compare import result_files
+
+    return {name: file_digest(run_dir / name) for name in sorted(result_files(run_dir))}
+
+
+def run_slamlab(args: list[str], run_dir: Path, cache: Path | None) -> None:
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    if cache is not None:
+        env["SLAMLAB_CACHE_DIR"] = str(cache)
+    proc = subprocess.run([sys.executable, "-m", "slamlab.cli.app", *args, f"hydra.run.dir={run_dir}", "progress=off"],
+                          cwd=run_dir.parent, env=env, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+
+
+def first_difference(before: dict[str, str], now: dict[str, str]) -> str | None:
+    for name in sorted(set(before) | set(now)):
+        if name not in now:
+            return f"{name}: written before, missing now"
+        if name not in before:
+            return f"{name}: new (not written before)"
+        if before[name] != now[name]:
+            return f"{name}: differs"
+    return None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["sim", "intel"])
+def test_results_are_those_of_before_the_memory_work(name, tmp_path, sim_cache, request):
+    data = request.getfixturevalue("shared_data") if name == "intel" else None
+    before = json.loads(RESULTS_BEFORE.read_text())[name]
+    run_dir = tmp_path / name
+    run_slamlab(runs(data)[name], run_dir, sim_cache)
+    now = run_digests(run_dir)
+    assert len(now) >= 10, f"only {sorted(now)} written"
+    assert first_difference(before, now) is None, first_difference(before, now)
+
+
+def test_a_changed_result_is_caught(tmp_path):
+    """The comparison sees a one-value change in an array, in a kept metric and in a step
+    column, and ignores timing and memory figures."""
+    from slamlab.io.rundir import RunFile
+
+    np.savez(tmp_path / "a.npz", data=np.arange(6, dtype=np.float32))
+    (tmp_path / RunFile.METRICS).write_text(json.dumps({"scans": 3, "runtime_s": 1.0, "peak_memory_mb": 200.0}))
+    (tmp_path / RunFile.STEPS_CSV).write_text("step,neff,step_time_s\n0,30,0.01\n")
+    before = {p.name: file_digest(p) for p in tmp_path.iterdir()}
+
+    (tmp_path / RunFile.METRICS).write_text(json.dumps({"scans": 3, "runtime_s": 2.5, "peak_memory_mb": 150.0}))
+    (tmp_path / RunFile.STEPS_CSV).write_text("step,neff,step_time_s\n0,30,0.02\n")
+    assert {p.name: file_digest(p) for p in tmp_path.iterdir()} == before  # time and memory only
+
+    np.savez(tmp_path / "a.npz", data=np.array([0, 1, 2, 3, 4, 5.0000005], dtype=np.float32))
+    (tmp_path / RunFile.METRICS).write_text(json.dumps({"scans": 4, "runtime_s": 2.5, "peak_memory_mb": 150.0}))
+    (tmp_path / RunFile.STEPS_CSV).write_text("step,neff,step_time_s\n0,29,0.02\n")
+    now = {p.name: file_digest(p) for p in tmp_path.iterdir()}
+    assert all(now[k] != before[k] for k in before)
+    assert first_difference(before, now) == "a.npz: differs"
+
+
+def main() -> None:
+    """Write the digests of both runs made with the slamlab on the path to `argv[1]`."""
+    import tempfile
+
+    from slamlab.paths import data_dir
+
+    out = Path(sys.argv[1])
+    result = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, args in runs(data_dir()).items():
+            run_dir = Path(tmp) / name
+            run_slamlab(args, run_dir, Path(tmp) / "cache")
+            result[name] = run_digests(run_dir)
+    out.write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
+
+
+if __name__ == "__main__":
+    main()
