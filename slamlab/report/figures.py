@@ -23,7 +23,7 @@ from slamlab.io.png import grey_rgba
 from slamlab.io.table import Table
 from slamlab.report.mpl import Figure, colormaps  # headless, without docstring tables (mpl.py)
 from slamlab.report.rundir import LogOddsMap, Trajectory
-from slamlab.slam.replay import block_max
+from slamlab.numeric import block_max
 
 DPI = 90
 # Fixed colours per trajectory kind, so every figure reads the same way.

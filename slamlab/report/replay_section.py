@@ -22,7 +22,7 @@ from slamlab.eval.trajectory import sample_onto
 from slamlab.frames import GridImage
 from slamlab.io.rundir import RunFile
 from slamlab.report.rundir import RunDir, Trajectory
-from slamlab.slam.replay import snapshot_steps
+from slamlab.numeric import evenly_spaced
 
 FRAME_PX = 640  # longest side of a replay frame (pixels)
 MAX_PATH_POINTS = 3000
@@ -116,11 +116,11 @@ def replay_section(run: RunDir) -> ReplaySection | None:
 
     data: dict = {"window": window, "w": w, "h": h, "snaps": snaps, "t0": float(z["t"][0])}
     if best_path is not None:
-        keep = snapshot_steps(len(best_path), MAX_PATH_POINTS)
+        keep = evenly_spaced(len(best_path), MAX_PATH_POINTS)
         data["path"] = {"t": np.round(best_path.t[keep] - z["t"][0], 3).tolist(), "xy": np.round(best_path.xy[keep], 2).tolist()}
     steps = run.load_steps()
     if steps is not None and "neff" in steps and len(steps):
-        keep = snapshot_steps(len(steps), MAX_CURVE_POINTS)
+        keep = evenly_spaced(len(steps), MAX_CURVE_POINTS)
         t = np.asarray(steps["t"], float) - z["t"][0] if "t" in steps else np.arange(len(steps), dtype=float)
         data["neff"] = {"t": np.round(t[keep], 2).tolist(), "v": np.round(np.asarray(steps["neff"], float)[keep], 2).tolist(),
                         "n": run.particles or float(np.nanmax(steps["neff"]))}
