@@ -344,15 +344,16 @@ def run_pipeline(
             metrics = filter_metrics(seq, result, cfg)
             metrics.cpu_time_s = cpu_slam
             metrics = replace(metrics, **accuracy_metrics(seq, result))
-            consistency, consistency_series = consistency_metrics(seq, result.trajectory, result.log_odds, setup.components.map)
-            metrics.consistency = consistency
+            consistency = consistency_metrics(seq, result.trajectory, result.log_odds, setup.components.map)
+            metrics.consistency = consistency.summary
             run.write_trajectory(TrajectoryKind.SLAM, result.times, result.trajectory)
             run.write_trajectory(TrajectoryKind.CAUSAL, result.times, result.causal)
             run.write_trajectory(TrajectoryKind.ODOMETRY, result.times, result.odometry)
             if seq.ground_truth is not None:
                 run.write_trajectory(TrajectoryKind.GROUNDTRUTH, result.times, seq.ground_truth.poses[: len(result.times)])
             artifacts.write_steps(run_dir, result.steps)
-            artifacts.write_consistency(run_dir, consistency_series)
+            artifacts.write_consistency(run_dir, consistency.series)
+            run.write_consistency_map(consistency.overlay)
             relations = relation_table(seq, result)
             if relations is not None:
                 artifacts.write_table(run / RunFile.RELATIONS, relations)

@@ -43,6 +43,7 @@ class RunFile(StrEnum):
     GROUNDTRUTH = "groundtruth.tum"
     STEPS_CSV = "steps.csv"
     CONSISTENCY = "consistency.csv"
+    CONSISTENCY_MAP = "consistency_map.npz"  # where the scans contradict the map (the report's overlay)
     PARTICLES = "particles.npz"  # record.particles
     REPLAY = "replay.npz"  # record.replay
     RELATIONS = "relations.csv"  # logs with benchmark relations
@@ -247,6 +248,10 @@ class RunDirectory:
 
     def write_first_scan(self, scan: FirstScan) -> None:
         write_npz(self.path / RunFile.FIRST_SCAN, **{f.name: getattr(scan, f.name) for f in fields(scan)})
+
+    def write_consistency_map(self, arrays: dict[str, np.ndarray]) -> None:
+        """consistency_map.npz: the consistency replay's overlay layers (`slamlab.eval.consistency`)."""
+        write_npz(self.path / RunFile.CONSISTENCY_MAP, **arrays)
 
     def write_replay(self, **arrays: np.ndarray) -> None:
         """replay.npz: the snapshot arrays of `slamlab.slam.replay` plus `scan_index`, `t`."""
