@@ -261,25 +261,6 @@ def weight_and_time_plot(steps: Table) -> str:
     return fig_to_data_uri(fig)
 
 
-def consistency_plot(series: Table) -> str:
-    """Per-scan hit fraction of the consistency replay over time, with a rolling median:
-    a drop marks where the map broke (slamlab.eval.consistency)."""
-    fig, ax = subplots(figsize=(13.0, 2.8))
-    t = step_times(series)
-    y = np.asarray(series["hit_fraction"], dtype=float)
-    ax.plot(t, y, lw=0.5, color="#7f7f7f", alpha=0.6, label="per scan")
-    if y.size:
-        win = max(1, y.size // 40)
-        smooth = rolling_median(y, win)
-        ax.plot(t, smooth, lw=1.4, color="#1f77b4", label=f"rolling median ({win} scans)")
-    ax.set_ylim(0.0, 1.02)
-    ax.set_ylabel("scan hits on map")
-    ax.set_xlabel("time since first scan (s)")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
-    return fig_to_data_uri(fig)
-
-
 def trajectories_overlay(
     background: LogOddsMap | None,
     background_label: str,

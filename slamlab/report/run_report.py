@@ -15,6 +15,8 @@ import numpy as np
 import yaml
 
 from slamlab.report import error_figures, figures, particle_sections
+from slamlab.report.consistency_section import consistency_section
+from slamlab.report.extra_sections import extra_sections
 from slamlab.report.ground_frames import ground_frames_section
 from slamlab.report.replay_section import replay_section
 from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
@@ -121,7 +123,10 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
         out.append(("texture colour error, SLAM / odometry (0-255)",
                     f"{fmt_number(tex['colour_error'])} / {fmt_number(odo_tex.get('colour_error'))}"))
     cons = m.get("consistency") if isinstance(m.get("consistency"), dict) else {}
-    if "hit_fraction_mean" in cons:
+    if "contradiction_worst_window" in cons:
+        out.append(("beams contradicting the map: whole run / worst stretch",
+                    f"{fmt_number(cons.get('contradiction_share'))} / {fmt_number(cons['contradiction_worst_window'])}"))
+    elif "hit_fraction_mean" in cons:  # runs before the verdict (2026-11-29)
         out.append(("scan hits on map / wall conflicts", f"{fmt_number(cons['hit_fraction_mean'])} / {fmt_number(cons.get('conflict_fraction', float('nan')))}"))
     for key, label in (("runtime_s", "filter runtime (s)"), ("scans_per_s", "scans/s"),
                        ("realtime_factor", "× real time"), ("peak_memory_mb", "peak memory (MB)"),
@@ -227,11 +232,7 @@ def render_run_report(run: RunDir) -> str:
             + (f" Dashed red line: resampling threshold ({thr_src})." if thr is not None else f" No threshold line: {thr_src}.")
         )
 
-    consistency_img = None
-    series = run.files.read_columns(RunFile.CONSISTENCY)
-    if series is not None:
-        if len(series) > 1:  # one replayed scan has no "over time" (as for N_eff above)
-            consistency_img = figures.consistency_plot(series)
+    consistency = consistency_section(run)
 
     cmd, exact = rerun_commands(run)
     man = run.manifest
@@ -280,7 +281,8 @@ def render_run_report(run: RunDir) -> str:
         neff_note=neff_note,
         single_step=steps is not None and len(steps) == 1,
         weight_img=weight_img,
-        consistency_img=consistency_img,
+        consistency=consistency,
+        extras=extra_sections(run),
         error_img=error_img,
         error_note=error_note,
         replay=replay_section(run),
