@@ -46,6 +46,12 @@ log = logging.getLogger("slamlab")
 CLAIM_FILE = RunFile.CLAIM
 
 
+# Runs started in this process so far (this one included): a job of a launcher that reuses
+# its worker processes is not the first.
+_RUNS_BEFORE = [0]
+SCOPE_REUSED = "run, in a process that ran other runs before"
+
+
 class RunDirectoryInUse(SlamlabError):
     """The run directory already holds another run's artifacts."""
 
@@ -315,6 +321,7 @@ def run_pipeline(
     t0 = time.perf_counter()
     cpu0 = time.process_time()  # CPU s of this process: comparable when jobs share the cores
     memory = RunPeakMemory()  # this run's own peak, also when a sweep runs many in one process
+    _RUNS_BEFORE[0] += 1
     stopper: StopOnSigint | None = None
     metrics: RunMetrics | None = None
     try:
@@ -380,7 +387,10 @@ def run_pipeline(
         metrics.total_runtime_s = time.perf_counter() - t0
         metrics.total_cpu_time_s = time.process_time() - cpu0
         metrics.peak_memory_mb = memory.peak_mb()
-        metrics.peak_memory_scope = memory.scope
+        # a process that ran other runs before this one still holds some of what they
+        # allocated: this run's peak then sits on that floor (`slamlab -m` runs each job in a
+        # fresh child process; a launcher's reused workers do not)
+        metrics.peak_memory_scope = memory.scope if _RUNS_BEFORE[0] == 1 or memory.scope != "run" else SCOPE_REUSED
         run.write_metrics(metrics)
     except KeyboardInterrupt:
         memory.peak_mb()  # stops its sampling thread, if any

@@ -10,9 +10,12 @@ from __future__ import annotations
 import gc
 import importlib
 import logging
+import os
+import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
@@ -96,11 +99,72 @@ def _skip_numba_probes() -> None:
             del sys.modules[hidden]
 
 
+def _run_in_child(work: Callable[[], None]) -> int:
+    """Run `work` in a forked child process and return its exit status (128 + N when a
+    signal N ended it). Why: jobs of a sequential sweep used to run one after the other in
+    one process, and each job's peak memory then included what the jobs before it left
+    allocated (caches, the allocator's free lists: 50 particles, seeds 0 / 1 / 2 measured 444 /
+    539 / 523 MB). A child starts from the same parent every time, so each job's peak is its
+    own whatever its place, and a job the system kills for memory ends that job, not the sweep.
+    The parent runs no kernel and starts no thread pool, so forking is safe; Ctrl-C reaches the
+    child, which stops after its step and writes its partial run, and the sweep then stops."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    pid = os.fork()
+    if pid == 0:  # the child: run the job, never return into Hydra
+        code = 1
+        try:
+            work()
+            code = 0
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        except BaseException:  # noqa: BLE001 - a bug: its traceback, then the child ends
+            import traceback
+
+            traceback.print_exc()
+        finally:
+            logging.shutdown()
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code)
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # the child handles Ctrl-C and says where it stopped
+    try:
+        while True:
+            try:
+                _, status = os.waitpid(pid, 0)
+                break
+            except InterruptedError:
+                continue
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    code = os.waitstatus_to_exitcode(status)
+    return 128 - code if code < 0 else code
+
+
+def _isolate_jobs(hc: Any) -> bool:
+    """Run this sweep's jobs in child processes: Hydra's basic launcher (one job after the
+    other in this process) on a system with fork; the parallel launchers give jobs worker
+    processes of their own."""
+    return hasattr(os, "fork") and "BasicLauncher" in str(hc.launcher.get("_target_", ""))
+
+
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def _hydra_main(cfg: DictConfig) -> None:
-    _skip_numba_probes()
     hc = HydraConfig.get()
     multirun = hc.mode == RunMode.MULTIRUN
+    if multirun and _isolate_jobs(hc):
+        code = _run_in_child(lambda: _run_job(cfg, hc, multirun))
+        if code == EXIT_INTERRUPTED:
+            sys.exit(EXIT_INTERRUPTED)  # Ctrl-C: the child said where it stopped; the sweep stops too
+        if code != 0:
+            log.error("job %s ended with status %d; details in %s", hc.job.num, code, Path(hc.runtime.output_dir))
+        return
+    _run_job(cfg, hc, multirun)
+
+
+def _run_job(cfg: DictConfig, hc: Any, multirun: bool) -> None:
+    """One run (or one job of a sweep): the pipeline and its report, errors said in one line."""
+    _skip_numba_probes()
     if multirun and "BasicLauncher" not in str(hc.launcher.get("_target_", "")):
         _limit_threads_for_parallel_jobs()  # joblib, submitit, ray: jobs run side by side
     run_dir = Path(hc.runtime.output_dir)
