@@ -65,6 +65,7 @@ class RunFile(StrEnum):
     HYDRA_DIR = ".hydra"
     HYDRA_CONFIG = ".hydra/config.yaml"
     HYDRA_OVERRIDES = ".hydra/overrides.yaml"
+    HYDRA_RECORD = ".hydra/hydra.yaml"
 
 
 class SweepFile(StrEnum):
@@ -273,6 +274,19 @@ class RunDirectory:
         """Hydra's saved task overrides (`key=value` strings); [] when none are recorded."""
         overrides = read_yaml(self.path / RunFile.HYDRA_OVERRIDES)
         return [str(o) for o in overrides] if isinstance(overrides, list) else []
+
+    def read_choices(self) -> dict[str, str]:
+        """The config group choices the run was composed with (Hydra's record,
+        .hydra/hydra.yaml `hydra.runtime.choices`: e.g. {"filter": "rbpf", "experiment":
+        "lidar2d"}; Hydra's own groups left out); {} when not recorded."""
+        record = read_yaml(self.path / RunFile.HYDRA_RECORD)
+        try:
+            choices = record["hydra"]["runtime"]["choices"]
+        except (TypeError, KeyError):
+            return {}
+        if not isinstance(choices, dict):
+            return {}
+        return {str(k): str(v) for k, v in choices.items() if not str(k).startswith("hydra/") and v is not None}
 
     def read_trajectory(self, which: TrajectoryKind | str) -> tuple[np.ndarray, np.ndarray] | None:
         """(times (N,) s, poses (N, 3) x m, y m, yaw rad); None if absent or empty."""

@@ -287,17 +287,23 @@ def trajectories_overlay(
     return fig_to_data_uri(fig)
 
 
-def neff_overlay(curves: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str) -> str:
+def neff_overlay(curves: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str,
+                 xlabel: str = "time since first step (s)") -> str:
+    return fig_to_data_uri(neff_overlay_figure(curves, ylabel, xlabel))
+
+
+def neff_overlay_figure(curves: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str,
+                        xlabel: str = "time since first step (s)") -> Figure:
     """N_eff (or N_eff / N) curves of several runs on one axis."""
     fig, ax = subplots(figsize=(10.0, 3.8))
     colours = colormaps["tab10" if len(curves) <= 10 else "tab20"]
     for i, (label, t, y) in enumerate(curves):
         ax.plot(t, y, lw=0.8, color=colours(i % colours.N), label=label)
-    ax.set_xlabel("time since first step (s)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3)
     ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8)
-    return fig_to_data_uri(fig)
+    return fig
 
 
 @dataclass(frozen=True, slots=True)
