@@ -45,16 +45,27 @@ def run_and_report(
     progress: Callable[[int, int], None] | str | None = "auto",
 ) -> dict:
     """`run_pipeline` (same arguments and metrics), then `report.html` in `run_dir` when
-    `cfg.report` is on. A report problem is logged and never fails a finished run."""
-    metrics = run_pipeline(cfg, run_dir, overrides=overrides, progress=progress)
+    `cfg.report` is on. A report problem is logged and never fails a finished run. A run
+    stopped by Ctrl-C gets its report too, marked "interrupted", from what it wrote."""
+    try:
+        metrics = run_pipeline(cfg, run_dir, overrides=overrides, progress=progress)
+    except RunInterrupted:
+        if cfg.get("report", True):
+            _write_report(Path(run_dir))
+        raise
     if cfg.get("report", True):
-        try:
-            from slamlab.report.run_report import write_run_report
-
-            write_run_report(Path(run_dir))
-        except Exception as exc:  # a report problem must not fail a finished run
-            log.error("could not write report.html: %s", exc)
+        _write_report(Path(run_dir))
     return metrics
+
+
+def _write_report(run_dir: Path) -> None:
+    """report.html in `run_dir`; a problem (or a second Ctrl-C meanwhile) is logged, not raised."""
+    try:
+        from slamlab.report.run_report import write_run_report
+
+        write_run_report(run_dir)
+    except (Exception, KeyboardInterrupt) as exc:  # a report problem must not fail a run
+        log.error("could not write report.html: %s", exc or type(exc).__name__)
 
 
 def _limit_threads_for_parallel_jobs() -> None:
