@@ -258,6 +258,11 @@ def main() -> None:
     # What is imported so far lives as long as the process: the garbage collector need not
     # scan it again at every full collection.
     gc.freeze()
+    if any(a in ("--help", "-h") for a in sys.argv[1:]):
+        from slamlab.cli.help import help_text
+
+        print(help_text())  # one line per group and key, from the schemas (Hydra's lists schema/* too)
+        return
     mistake = check_overrides(sys.argv[1:])
     if mistake:
         print(f"slamlab: {mistake}", file=sys.stderr)
