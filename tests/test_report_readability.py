@@ -111,3 +111,77 @@ def test_metric_panels_start_at_zero():
     for ax in fig.axes:
         if ax.axison:
             assert ax.get_ylim()[0] == 0.0 and ax.get_ylim()[1] >= 0.7
+
+
+def test_when_most_steps_resample_the_strip_marks_those_that_did_not():
+    from slamlab.report.figures import neff_figure
+
+    n = 200
+    resampled = np.ones(n, bool)
+    resampled[::20] = False  # 95 % resample
+    steps = Table({"t": np.arange(n) * 0.5, "neff": np.full(n, 10.0), "resampled": resampled})
+    fig = neff_figure(steps, 30, 15.0)
+    strip = fig.axes[1]
+    ticks = np.concatenate([c.get_positions() for c in strip.collections])
+    assert np.allclose(np.sort(ticks), np.arange(0, n, 20) * 0.5)  # the 10 steps that did not
+    assert strip.get_ylabel() == "not resampled"
+    assert "resampled at 190 of 200 steps (95 %); ticks: the steps that did not" in _texts(fig)
+    few = resampled.copy()
+    few[:] = False
+    few[[3, 50]] = True
+    fig = neff_figure(Table({"t": steps["t"], "neff": steps["neff"], "resampled": few}), 30, 15.0)
+    assert np.allclose(np.sort(np.concatenate([c.get_positions() for c in fig.axes[1].collections])), [1.5, 25.0])
+
+
+def test_the_first_steps_compile_time_does_not_set_the_step_time_axis():
+    """Issue 45: the step-time plot was set by the first step's 2.96 s JIT compile, unsaid."""
+    from slamlab.report.figures import weight_and_time_figure
+
+    rng = np.random.default_rng(2)
+    st = rng.uniform(0.004, 0.006, 300)
+    st[0] = 2.96
+    steps = Table({"t": np.arange(300) * 0.5, "best_weight": np.full(300, 0.1), "step_time_s": st})
+    fig = weight_and_time_figure(steps)
+    times = fig.axes[1]
+    assert times.get_ylim()[1] < 100.0  # ms: the 2,960 ms step is not on it
+    line = times.get_lines()[0]
+    assert len(line.get_xdata()) == 299 and line.get_xdata()[0] == 0.5
+    assert "first step 2960 ms" in _texts(fig)
+    assert f"median {np.median(st[1:]) * 1000:.1f} ms" in [t.get_text() for t in times.get_legend().get_texts()]
+    assert "slowest 6 ms" in [t.get_text() for t in times.get_legend().get_texts()]  # not the first step's
+
+
+def test_counts_of_one_are_singular(tmp_path):
+    """Issue 45: "1 particles", "1 snapshots"."""
+    from report_fixtures import make_run_dir
+    from slamlab.report import build_sweep_report, write_run_report
+    from slamlab.report.html import count_text, environment
+
+    assert [count_text(n, "snapshot") for n in (1, 100)] == ["1 snapshot", "100 snapshots"]
+    assert environment().from_string("{{ 1|count('particle') }} / {{ 3|count('match') }}").render() == "1 particle / 3 matches"
+    run = make_run_dir(tmp_path / "one", overrides=["particles=1"], n_steps=40)
+    page = write_run_report(run).read_text()
+    assert "1 particles" not in page and "1 particle" in page
+    assert "Comparison of 1 run<" in build_sweep_report([run], tmp_path / "out").read_text()
+
+
+def test_the_texture_images_to_compare_come_out_the_same_size(tmp_path):
+    """Issue 45: the odometry texture (its own textured area) was a different size from the
+    SLAM and true textures. Cut to one window, they are the same size, cell under cell."""
+    from PIL import Image
+
+    from report_fixtures import make_run_dir
+    from slamlab.report.figures import png_size
+    from slamlab.report.rundir import load_run
+    from slamlab.report.run_report import texture_gallery
+
+    run = make_run_dir(tmp_path / "r", n_steps=40)
+    for name, (x0, y0, x1, y1) in (("texture.png", (281, 219, 598, 464)), ("texture_truth.png", (281, 219, 598, 464)),
+                                   ("texture_odometry.png", (281, 212, 601, 461))):
+        rgba = np.zeros((800, 800, 4), np.uint8)
+        rgba[y0:y1, x0:x1] = (120, 80, 40, 255)
+        Image.fromarray(rgba).save(run / name)
+    shown = texture_gallery(load_run(run))
+    sizes = {png_size(t["uri"]) for t in shown}
+    assert len(shown) == 3 and sizes == {(601 - 281 + 24, 464 - 212 + 24)}  # the union, with its 12 px margin
+    assert len({t["width"] for t in shown}) == 1

@@ -43,6 +43,7 @@ def environment() -> jinja2.Environment:
     sweep's run pages compile them once; across processes `compiled_templates` keeps them."""
     env = make_environment(jinja2.FileSystemLoader(str(TEMPLATE_DIR)), compiled_templates())
     env.filters["num"] = fmt_number
+    env.filters["count"] = count_text  # {{ n|count("snapshot") }}: 1 snapshot, 100 snapshots
     return env
 
 
@@ -76,6 +77,15 @@ def compiled_templates() -> jinja2.BytecodeCache | None:
 def render(template: str, **context: Any) -> str:
     """Render a template from slamlab/report/templates."""
     return environment().get_template(template).render(**context)
+
+
+def count_text(n: Any, noun: str) -> str:
+    """A count with its noun in the right number: 1 particle, 3 particles (nouns in -s, -x or
+    -ch take -es)."""
+    if n is None:
+        return f"? {noun}s"
+    plural = noun + ("es" if noun.endswith(("s", "x", "ch")) else "s")
+    return f"{fmt_number(n)} {noun if n == 1 else plural}"
 
 
 def fmt_number(v: Any, digits: int = 4) -> str:

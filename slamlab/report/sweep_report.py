@@ -27,7 +27,7 @@ from slamlab.errors import SlamlabError
 from slamlab.report import figures, sweep_figures
 from slamlab.report.columns import ACCURACY_KEYS, HEADLINE_GROUPS, METRIC_BY_KEY, METRICS, get_metric
 from slamlab.report.error_series import ATE, error_series
-from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
+from slamlab.report.html import atomic_write_text, count_text, fmt_number, now_text, package_version, render
 from slamlab.io.rundir import RunDirectory, RunFile, SweepFile, read_yaml
 from slamlab.report.rundir import (
     STATUS_FAILED,
@@ -648,7 +648,7 @@ def build_sweep_report(
 
     if title is None:
         roots = {r.path.parent for r in runs}
-        title = f"Sweep {next(iter(roots))}" if len(roots) == 1 and len(runs) > 1 else f"Comparison of {len(runs)} runs"
+        title = f"Sweep {next(iter(roots))}" if len(roots) == 1 and len(runs) > 1 else f"Comparison of {count_text(len(runs), 'run')}"
     html = render(
         "sweep.html",
         title=title,
