@@ -42,3 +42,20 @@ def test_every_group_and_run_key_has_a_docstring():
         assert docs.get(f.name), f"AppConfig.{f.name} has no docstring"
     assert set(field_docs(RunConfig)) == {f.name for f in dataclasses.fields(RunConfig)}
     assert all(len(line) <= 110 for line in help_text().splitlines())
+
+
+# ---- issue 45: a config error leaves no failed run folder behind --------------------------------
+def test_a_mistake_found_before_the_run_leaves_no_folder(slamlab_app, tmp_path):
+    """particles=0 or a missing file: one line, exit 2, and no run folder in outputs/ (a sweep
+    keeps its failed jobs' folders for its report: tests/test_cli_runs.py)."""
+    out = slamlab_app(["particles=0", f"hydra.run.dir={tmp_path / 'given'}"], cwd=tmp_path)
+    assert out.returncode == 2 and "config 'particles': must be an integer >= 1, got 0" in out.stderr
+    assert "Traceback" not in out.stderr and "details in" not in out.stderr
+    assert not (tmp_path / "given").exists()
+    out = slamlab_app(["dataset=carmen", f"dataset.path={tmp_path / 'no' / 'such.clf'}"], cwd=tmp_path)
+    assert out.returncode == 2 and "such.clf: file not found" in out.stderr
+    assert not any(p.is_dir() for p in (tmp_path / "outputs").glob("*/*"))  # no outputs/DATE/TIME
+    mine = tmp_path / "mine"
+    mine.mkdir()  # a folder the user made: emptied of the run's files, kept
+    out = slamlab_app(["particles=0", f"hydra.run.dir={mine}"], cwd=tmp_path)
+    assert out.returncode == 2 and mine.is_dir() and list(mine.iterdir()) == []

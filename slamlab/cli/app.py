@@ -11,6 +11,7 @@ import gc
 import importlib
 import logging
 import os
+import re
 import signal
 import sys
 from collections.abc import Callable
@@ -190,9 +191,49 @@ def _run_job(cfg: DictConfig, hc: Any, multirun: bool) -> None:
         if err is None and not multirun:
             raise  # a bug: keep the traceback
         log.error("%s", err or exc)
+        if not multirun and err is not None and _discard_unrun(run_dir):
+            # a mistake found before any work (a config value, a missing file): the line
+            # above says it all, and a folder holding nothing but that would only be litter
+            sys.exit(2)
         log.error("run failed; details in %s", run_dir / RunFile.METRICS)
         if not multirun:
             sys.exit(2)
+
+
+# Folders that existed before this process claimed them (hydra.run.dir=DIR given, DIR there):
+# a run that never started gives them back, never removes them.
+_PRE_EXISTING: set[Path] = set()
+# What a run leaves in its folder before it produces anything (Hydra's record, the claim, the
+# failure's metrics.json and log): a folder holding only these held no run.
+_BEFORE_ANY_RESULT = frozenset({RunFile.HYDRA_DIR, RunFile.CLAIM, RunFile.METRICS, RunFile.LOG})
+
+
+def _discard_unrun(run_dir: Path) -> bool:
+    """Remove a single run's folder when the run stopped before it produced anything (a
+    config error, a missing data file: its folder holds nothing but Hydra's record, the claim,
+    metrics.json and the log). True when removed; a folder with anything else is kept, and one
+    that existed before the run is emptied of the run's files but stays."""
+    import shutil
+
+    run_dir = Path(run_dir)
+    try:
+        names = {p.name for p in run_dir.iterdir()}
+    except OSError:
+        return False
+    if not names <= _BEFORE_ANY_RESULT:
+        return False
+    for name in names:
+        path = run_dir / name
+        shutil.rmtree(path, ignore_errors=True) if path.is_dir() else path.unlink(missing_ok=True)
+    if run_dir.resolve() not in _PRE_EXISTING:
+        try:
+            run_dir.rmdir()
+            # the date folder Hydra made for it (outputs/DATE/), if the run was its only one
+            if re.fullmatch(r"\d{4}-\d{2}-\d{2}", run_dir.parent.name):
+                run_dir.parent.rmdir()
+        except OSError:
+            pass
+    return True
 
 
 def _claim_given_run_dir(argv: list[str]) -> tuple[Path, bool] | None:
@@ -207,6 +248,8 @@ def _claim_given_run_dir(argv: list[str]) -> tuple[Path, bool] | None:
         return None  # the default folder has microseconds in its name; interpolations resolve later
     run_dir = Path(dirs[-1])
     created = not run_dir.exists()
+    if not created:
+        _PRE_EXISTING.add(run_dir.resolve())
     run_dir.mkdir(parents=True, exist_ok=True)
     try:
         claim_run_dir(run_dir)
