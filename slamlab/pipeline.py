@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import sys
 import time
 import traceback
 import warnings
@@ -29,6 +30,7 @@ from slamlab.datasets.stamps import repeated_stamps
 from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.frames import Relations, Sequence
 from slamlab.interrupt import RunInterrupted, StopOnSigint
+from slamlab.io.atomic import DiskFullError
 from slamlab.io.run_metrics import STATUS_FAILED, STATUS_INTERRUPTED, RunMetrics
 from slamlab.io.rundir import FirstScan, ParticleRecord, RunDirectory, RunFile, TrajectoryKind
 from slamlab.io.table import Table
@@ -294,7 +296,9 @@ def _finish_background(pool: ThreadPoolExecutor, job: Future, failing: bool = Fa
             interrupted = True
     pool.shutdown()
     if failing and job.exception() is not None:
-        log.error("writing the map failed too: %s", job.exception())
+        going_up = sys.exc_info()[1]
+        if not (isinstance(job.exception(), DiskFullError) and isinstance(going_up, DiskFullError)):  # said once
+            log.error("writing the map failed too: %s", job.exception())
     if interrupted:
         raise KeyboardInterrupt
 

@@ -301,6 +301,9 @@ def main() -> None:
     # What is imported so far lives as long as the process: the garbage collector need not
     # scan it again at every full collection.
     gc.freeze()
+    # a log line that cannot be written (a full disk under slamlab.log) must not print a
+    # traceback per line: the console still shows it, and the run's error says why
+    logging.raiseExceptions = False
     if any(a in ("--help", "-h") for a in sys.argv[1:]):
         from slamlab.cli.help import help_text
 
