@@ -56,6 +56,10 @@ def test_a_consistent_run_says_so_in_one_line_at_the_top(tmp_path: Path) -> None
     assert 'id="consistency"' in page and 'alt="where the scans contradict the map"' in page
     assert 'id="broken-spans"' not in page  # nothing to list
     assert "beams contradicting the map over time" in page
+    loaded = load_run(run)
+    fig = overlay_figure(loaded.load_map(), loaded.files.read_arrays(RunFile.CONSISTENCY_MAP), [], None)
+    events = fig.axes[0].get_images()[-1].get_array()
+    assert (events[..., 3] > 0.9).sum() == 0  # nothing strong: a consistent map's few contradictions stay pale
 
 
 def test_a_broken_run_names_where_and_when_and_circles_it_on_the_map(tmp_path: Path) -> None:
@@ -77,7 +81,7 @@ def test_a_broken_run_names_where_and_when_and_circles_it_on_the_map(tmp_path: P
     cx, cy = np.mean(circles[0].get_xdata()), np.mean(circles[0].get_ydata())
     assert abs(cx - span.x_m) < 0.1 and abs(cy - span.y_m) < 0.1
     events = ax.get_images()[-1].get_array()
-    assert (events[..., 3] > 0).sum() > 20  # the contradicting cells
+    assert (events[..., 3] > 0.9).sum() > 20  # the broken stretch's contradicting cells, drawn strong
     curve = curve_figure(loaded.files.read_columns(RunFile.CONSISTENCY), 0.4, spans)
     shaded = [p for p in curve.axes[0].patches]
     assert len(shaded) == len(spans)

@@ -477,16 +477,24 @@ def overlay_arrays(events: _Events, grid: GridImage, spans: list[BrokenSpan]) ->
     """consistency_map.npz (docs/RUN_DIRECTORY.md): on EVENT_BIN_M cells over the map's
     extent (`origin_xy`, `bin_m`), the beams that saw through a wall (`see_through`, counted
     at the wall crossed), that landed in free space (`in_free`) and that landed on a wall
-    (`support`), uint16; and on REGION_M squares (`region_m`) each square's contradiction share
-    (`region_share`, float32, NaN where fewer than 30 beams)."""
+    (`support`), uint16, and the same two contradictions of the scans in broken stretches alone
+    (`broken_see_through`, `broken_in_free`: the report draws those strong, the rest faint);
+    and on REGION_M squares (`region_m`) each square's contradiction share (`region_share`,
+    float32, NaN where fewer than 30 beams)."""
     H, W = grid.data.shape
     res = grid.resolution_m
     k = max(1, int(round(EVENT_BIN_M / res)))
     hb, wb = -(-H // k), -(-W // k)
     out: dict[str, np.ndarray] = {"origin_xy": np.asarray(grid.origin_xy, np.float64), "bin_m": np.float64(k * res)}
     on = (events.row >= 0) & (events.row < H) & (events.col >= 0) & (events.col < W)
-    for name, which in (("see_through", SEE_THROUGH), ("in_free", IN_FREE), ("support", SUPPORT)):
+    in_span = np.zeros(len(events.scan), bool)
+    for sp in spans:
+        in_span |= (events.scan >= sp.first) & (events.scan <= sp.last)
+    for name, which, only in (("see_through", SEE_THROUGH, None), ("in_free", IN_FREE, None), ("support", SUPPORT, None),
+                              ("broken_see_through", SEE_THROUGH, in_span), ("broken_in_free", IN_FREE, in_span)):
         m = on & (events.cls == which)
+        if only is not None:
+            m &= only
         counts = np.bincount((events.row[m] // k) * wb + events.col[m] // k, minlength=hb * wb)
         out[name] = np.minimum(counts, np.iinfo(np.uint16).max).astype(np.uint16).reshape(hb, wb)
     g = max(1, int(round(REGION_M / res)))

@@ -76,13 +76,18 @@ def overlay_figure(m: LogOddsMap, layers: dict[str, np.ndarray], spans: list[dic
     # figure (a building's 0.25 m cells would vanish when the figure shrinks them)
     k = max(1, int(math.ceil(max(x1 - x0, y1 - y0) / float(layers["bin_m"]) / (max_px / 2))))
     b = float(layers["bin_m"]) * k
-    pooled = {name: block_max(np.asarray(layers[name]).astype(np.int32), k) for name in ("in_free", "see_through")}
+    names = ("in_free", "see_through", "broken_in_free", "broken_see_through")
+    pooled = {name: block_max(np.asarray(layers[name]).astype(np.int32), k) for name in names if name in layers}
     h, w = pooled["see_through"].shape
     events = np.zeros((h, w, 4))
-    for name, rgb in (("in_free", IN_FREE_RGB), ("see_through", SEE_THROUGH_RGB)):
-        hit = pooled[name] > 0
-        events[hit, :3] = rgb
-        events[hit, 3] = 0.9
+    # every contradicting beam faint (people, clutter and glass scatter them over any map), those of
+    # the broken stretches strong: they are what the verdict names
+    for name, rgb, alpha in (("in_free", IN_FREE_RGB, 0.3), ("see_through", SEE_THROUGH_RGB, 0.3),
+                             ("broken_in_free", IN_FREE_RGB, 0.95), ("broken_see_through", SEE_THROUGH_RGB, 0.95)):
+        if name in pooled:
+            hit = pooled[name] > 0
+            events[hit, :3] = rgb
+            events[hit, 3] = alpha
     ax.imshow(events, origin="lower", extent=(ox, ox + w * b, oy, oy + h * b), interpolation="nearest", zorder=3)
     if path is not None and len(path):
         ax.plot(path.xy[:, 0], path.xy[:, 1], color="#1f77b4", lw=0.6, alpha=0.35, zorder=4)
@@ -98,9 +103,12 @@ def overlay_figure(m: LogOddsMap, layers: dict[str, np.ndarray], spans: list[dic
     ax.set_ylim(y0, y1)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    handles = [_patch(SEE_THROUGH_RGB, "a beam saw through a wall of the map"),
-               _patch(IN_FREE_RGB, "a beam ended where the map is free"),
-               _patch((0.89, 0.38, 0.04), f"region ({layers.get('region_m', 0):g} m) where 20 %+ of beams contradict", 0.45)]
+    handles = [_patch(SEE_THROUGH_RGB, "a beam saw through a wall of the map", 0.3),
+               _patch(IN_FREE_RGB, "a beam ended where the map is free", 0.3)]
+    if spans:
+        handles += [_patch(SEE_THROUGH_RGB, "... in a stretch likely broken"), _patch(IN_FREE_RGB, "... in a stretch likely broken")]
+    if share.size and np.nanmax(np.append(share.ravel(), 0.0)) >= 0.2:
+        handles.append(_patch((0.89, 0.38, 0.04), f"region ({float(layers['region_m']):g} m) where 20 %+ of beams contradict", 0.45))
     if spans:
         handles.append(_line(SPAN_COLOUR, "likely broken here (numbered, worst first)"))
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=9)
@@ -164,8 +172,10 @@ def consistency_section(run: RunDir) -> ConsistencySection | None:
         overlay_img = fig_to_data_uri(overlay_figure(m, layers, spans, path))
         note = (f"Up to {cons.get('scans_scored', '?')} scans replayed at the estimated path against the final map. Red: a beam passed"
                 " through a wall the map holds before its own end (more than 0.3 m short of it); blue: a beam ended where the map"
-                " is confidently free. People walking, clutter and glass leave scattered dots; a loop closed wrongly leaves lines"
-                " of them along the walls that two passes drew apart. Shading: each region's share of contradicting beams.")
+                " is confidently free; pale, any scan's; strong, a scan of a stretch likely broken. People walking, clutter and"
+                " glass leave pale scattered dots on any map (a 0.25 m cell shows one beam of 1,000 scans); a loop closed wrongly"
+                " leaves strong lines along the walls that two passes drew apart. Shading: each 5 m region's share of"
+                " contradicting beams.")
     series = run.files.read_columns(RunFile.CONSISTENCY)
     curve_img = None
     if series is not None and len(series) > 1 and "contradiction" in series:
