@@ -185,3 +185,32 @@ def test_the_texture_images_to_compare_come_out_the_same_size(tmp_path):
     sizes = {png_size(t["uri"]) for t in shown}
     assert len(shown) == 3 and sizes == {(601 - 281 + 24, 464 - 212 + 24)}  # the union, with its 12 px margin
     assert len({t["width"] for t in shown}) == 1
+
+
+def test_long_legend_labels_stay_inside_the_figure():
+    """Lines named by other parameters' values (dataset paths in a mixed report): the legend
+    wraps to fewer labels a row and stays inside the figure."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from slamlab.report.figures import Series
+    from slamlab.report.sweep_figures import metric_panels_figure
+
+    x = np.arange(2, dtype=float)
+    labels = [f"experiment=lidar2d path={n}.clf.bz2 texture=default particles=30 duration_s=–" for n in ("intel", "aces", "fr-clinic")]
+    series = [Series(label, x, x + i, np.zeros(2), x, x + i) for i, label in enumerate(labels)]
+    fig = metric_panels_figure("particles", [("metric", series)] * 3)
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    box = fig.legends[0].get_window_extent(canvas.get_renderer())
+    assert fig.bbox.x0 <= box.x0 and box.x1 <= fig.bbox.x1
+
+
+def test_a_path_parameter_is_shown_by_its_file_name_with_the_whole_path_in_its_tooltip(tmp_path):
+    from report_fixtures import make_run_dir
+    from slamlab.report import build_sweep_report
+
+    runs = [make_run_dir(tmp_path / n, overrides=[f"dataset.path=/work/shared/data/carmen/{n}.clf.bz2"], n_steps=30)
+            for n in ("intel", "aces")]
+    page = build_sweep_report(runs, tmp_path / "out").read_text()
+    assert '<td class="param" title="/work/shared/data/carmen/intel.clf.bz2">intel.<wbr>clf.<wbr>bz2</td>' in page
+    assert "path=intel.clf.bz2" in page and "path=/work" not in page

@@ -42,13 +42,14 @@ METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("relations.causal.trans_abs_mean_m", "online rel. err (m)", "min", table=False),
     MetricSpec("relations.causal.local.trans_abs_mean_m", "online rel. err local (m)", "min", table=False),
     MetricSpec("relations.causal.loop.trans_abs_mean_m", "online rel. err loop (m)", "min", table=False),
-    MetricSpec("map.agreement", "map agreement", "max"),
+    MetricSpec("map.agreement", "map agree\u00adment", "max"),
     MetricSpec("map.occupied_precision", "occ. precision", "max", table=False),
     MetricSpec("map.occupied_recall", "occ. recall", "max", table=False),
     # self-consistency (no ground truth needed): slamlab.eval.consistency
     # the share of replayed beams that contradict the final map, over the run and in its worst stretch
-    MetricSpec("consistency.contradiction_share", "beams contradicting map", "min"),
-    MetricSpec("consistency.contradiction_worst_window", "worst stretch contradicting", "min"),
+    # (a soft hyphen in "contra-dicting": the table's narrow headers wrap there)
+    MetricSpec("consistency.contradiction_share", "beams contra\u00addicting map", "min"),
+    MetricSpec("consistency.contradiction_worst_window", "worst stretch contra\u00addicting", "min"),
     MetricSpec("consistency.hit_fraction_mean", "scan hits on map", "max", table=False),
     MetricSpec("consistency.hit_fraction_p10", "scan hits p10", "max", table=False),
     MetricSpec("consistency.conflict_fraction", "wall conflicts", "min", table=False),
@@ -71,7 +72,7 @@ METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("peak_memory_mb", "peak memory (MB)", "min"),
     MetricSpec("map_memory.map_mb", "map MB (end)", "min", detail=True),
     MetricSpec("map_memory.map_peak_mb", "map MB (peak)", "min", table=False),
-    MetricSpec("resample_count", "resamples", None),
+    MetricSpec("resample_count", "re\u00adsamples", None),
     MetricSpec("neff_mean", "N_eff mean", None),
     MetricSpec("neff_min", "N_eff min", None, detail=True),
 )

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import jinja2
+from markupsafe import Markup, escape
 
 from slamlab.artifacts import write_text
 from slamlab.paths import cache_dir
@@ -44,6 +45,7 @@ def environment() -> jinja2.Environment:
     env = make_environment(jinja2.FileSystemLoader(str(TEMPLATE_DIR)), compiled_templates())
     env.filters["num"] = fmt_number
     env.filters["count"] = count_text  # {{ n|count("snapshot") }}: 1 snapshot, 100 snapshots
+    env.filters["wbr"] = break_points  # {{ key|wbr }}: a long key may wrap after its dots, slashes, underscores
     return env
 
 
@@ -77,6 +79,15 @@ def compiled_templates() -> jinja2.BytecodeCache | None:
 def render(template: str, **context: Any) -> str:
     """Render a template from slamlab/report/templates."""
     return environment().get_template(template).render(**context)
+
+
+def break_points(text: Any) -> Markup:
+    """`text` escaped for HTML, with a line-break opportunity (<wbr>) after each '.', '/' and
+    '_': a table header such as dataset.duration_s then wraps at its parts, never mid-word."""
+    escaped = str(escape(str(text)))
+    for ch in "./_":
+        escaped = escaped.replace(ch, ch + "<wbr>")
+    return Markup(escaped)
 
 
 def count_text(n: Any, noun: str) -> str:

@@ -82,7 +82,9 @@ def metric_panels_figure(param: str, panels: Sequence[tuple[str, Sequence[Series
     n = len(panels)
     ncols = min(PANELS_PER_ROW, n)
     nrows = int(math.ceil(n / ncols))
-    height_in = 3.1 * nrows + (0.3 * math.ceil(len(labels) / 4) if legend else 0.0)
+    longest = max((len(label) for label in labels), default=1)
+    per_row = max(1, min(4, len(labels), int(4.6 * ncols * 12 // max(longest, 1))))  # ~12 characters an inch at 9 pt
+    height_in = 3.1 * nrows + (0.3 * math.ceil(len(labels) / per_row) if legend else 0.0)
     fig = Figure(figsize=(4.6 * ncols, height_in), layout="constrained")
     axes = np.atleast_2d(fig.subplots(nrows, ncols, squeeze=False))
     ticks = [tick_label(c) for c in categorical] if categorical is not None else None
@@ -108,7 +110,7 @@ def metric_panels_figure(param: str, panels: Sequence[tuple[str, Sequence[Series
         ax.axis("off")
     if legend:
         handles = [Line2D([], [], color=_colour(i), marker="o", lw=1.3) for i in labels.values()]
-        fig.legend(handles, list(labels), loc="outside upper center", ncol=min(4, len(labels)), fontsize=9, frameon=False)
+        fig.legend(handles, list(labels), loc="outside upper center", ncol=per_row, fontsize=9, frameon=False)
     return fig
 
 

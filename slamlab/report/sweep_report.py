@@ -45,6 +45,7 @@ from slamlab.report.sweep_stats import (
     config_stats,
     is_number,
     memory_note,
+    short_value,
     runtime_check,
     sweep_verdict,
     value_text,
@@ -64,6 +65,7 @@ class Cell:
     cls: str = ""
     sort: str | None = None
     href: str | None = None
+    title: str | None = None  # the whole value when `text` shortens it (a path by its file name)
 
 
 @dataclass(slots=True)
@@ -150,7 +152,7 @@ def swept_parameters(runs: Sequence[RunDir]) -> tuple[list[str], dict[str, list[
     # value (a run of the defaults ran 100 particles, not "particles=-")
     values = {k: [_parse_value(d[k]) if k in d else r.setting(k) for r, d in zip(runs, per_run)] for k in keys}
     swept = [k for k in keys if len({value_text(v) for v in values[k]}) > 1 and k not in NOT_RESULTS]
-    common = [f"{k}={per_run[0][k]}" for k in keys if k not in swept and all(k in d for d in per_run)]
+    common = [f"{k}={per_run[0][k]}" for k in keys if k not in swept and k not in NOT_RESULTS and all(k in d for d in per_run)]
     values = {k: values[k] for k in swept}
     if not swept and len(runs) > 1:
         diff = config_differences(runs)
@@ -251,7 +253,8 @@ def html_table(df: pd.DataFrame, runs: Sequence[RunDir], swept: Sequence[str], o
         for k in swept:
             v = rec[k]
             num = isinstance(v, (int, float)) and not isinstance(v, bool)
-            cells.append(Cell(value_text(v), "", repr(float(v)) if num else None))
+            full, short = value_text(v), short_value(v)
+            cells.append(Cell(short, "param", repr(float(v)) if num else None, title=full if short != full else None))
         if has_err:
             err = r.error if not r.ok and r.error else ""
             cells.append(Cell(err if len(err) <= 60 else err[:57] + "...", "err"))
@@ -369,7 +372,7 @@ def _sweep_commands(runs: Sequence[RunDir]) -> list[str]:
 
 
 def _short_params(swept: Sequence[str], values: dict[str, list[Any]], i: int) -> str:
-    return " ".join(f"{k.split('.')[-1]}={value_text(values[k][i])}" for k in swept)
+    return " ".join(f"{k.split('.')[-1]}={short_value(values[k][i])}" for k in swept)
 
 
 def _primary_metric(df: pd.DataFrame) -> str | None:

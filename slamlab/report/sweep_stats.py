@@ -53,9 +53,18 @@ def config_groups(df: pd.DataFrame, params: Sequence[str]) -> list[tuple[tuple, 
     return out
 
 
+def short_value(v: Any) -> str:
+    """A parameter value as a label shows it: a path by its file name (the table's cell keeps
+    the whole path in its tooltip), anything else as `value_text`."""
+    text = value_text(v)
+    if isinstance(v, str) and "/" in text:
+        return text.rstrip("/").rsplit("/", 1)[-1] or text
+    return text
+
+
 def config_label(params: Sequence[str], values: Sequence[Any]) -> str:
-    """`particles=50 resampler=residual` (last part of dotted keys)."""
-    return " ".join(f"{k.split('.')[-1]}={value_text(v)}" for k, v in zip(params, values)) or "all runs"
+    """`particles=50 resampler=residual` (last part of dotted keys; paths by their file name)."""
+    return " ".join(f"{k.split('.')[-1]}={short_value(v)}" for k, v in zip(params, values)) or "all runs"
 
 
 @dataclass(frozen=True, slots=True)
