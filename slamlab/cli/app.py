@@ -155,9 +155,10 @@ def _run_in_child(work: Callable[[], None]) -> int:
 
 def _isolate_jobs(hc: Any) -> bool:
     """Run this sweep's jobs in child processes: Hydra's basic launcher (one job after the
-    other in this process) on a system with fork; the parallel launchers give jobs worker
-    processes of their own."""
-    return hasattr(os, "fork") and "BasicLauncher" in str(hc.launcher.get("_target_", ""))
+    other in this process) on Linux; the parallel launchers give jobs worker processes of
+    their own."""
+    # Linux only: macOS forbids using many system libraries in a forked child that did not exec
+    return sys.platform.startswith("linux") and "BasicLauncher" in str(hc.launcher.get("_target_", ""))
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
