@@ -153,6 +153,14 @@ def _run_in_child(work: Callable[[], None]) -> int:
     return 128 - code if code < 0 else code
 
 
+def is_sweep_job(hc: Any) -> bool:
+    """Whether this is one job of a sweep: `-m`, or a config that sets `hydra.mode: MULTIRUN`
+    (`+experiment=ladder`), where Hydra leaves the job's mode unset but numbers the job."""
+    from omegaconf import OmegaConf
+
+    return hc.mode == RunMode.MULTIRUN or not OmegaConf.is_missing(hc.job, "num")
+
+
 def _isolate_jobs(hc: Any) -> bool:
     """Run this sweep's jobs in child processes: Hydra's basic launcher (one job after the
     other in this process) on Linux; the parallel launchers give jobs worker processes of
@@ -164,7 +172,7 @@ def _isolate_jobs(hc: Any) -> bool:
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def _hydra_main(cfg: DictConfig) -> None:
     hc = HydraConfig.get()
-    multirun = hc.mode == RunMode.MULTIRUN
+    multirun = is_sweep_job(hc)
     if multirun and _isolate_jobs(hc):
         code = _run_in_child(lambda: _run_job(cfg, hc, multirun))
         if code == EXIT_INTERRUPTED:
