@@ -105,8 +105,8 @@ def read_map(run_dir: Path) -> GridImage:
 
 
 def write_consistency(run_dir: Path, series: dict[str, np.ndarray]) -> None:
-    """consistency.csv: t (s), scan_index, hit_fraction of the scans the consistency score
-    replayed (slamlab.eval.consistency)."""
+    """consistency.csv: t (s), scan_index, hit_fraction, contradiction and
+    contradiction_window of the scans the consistency replay scored (slamlab.eval.consistency)."""
     write_table(Path(run_dir) / RunFile.CONSISTENCY, Table(series))
 
 

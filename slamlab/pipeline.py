@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import sys
 import time
 import traceback
 import warnings
@@ -29,6 +30,7 @@ from slamlab.datasets.stamps import repeated_stamps
 from slamlab.errors import ConfigError, DataError, SlamlabError
 from slamlab.frames import Relations, Sequence
 from slamlab.interrupt import RunInterrupted, StopOnSigint
+from slamlab.io.atomic import DiskFullError
 from slamlab.io.run_metrics import STATUS_FAILED, STATUS_INTERRUPTED, RunMetrics
 from slamlab.io.rundir import FirstScan, ParticleRecord, RunDirectory, RunFile, TrajectoryKind
 from slamlab.io.table import Table
@@ -45,6 +47,12 @@ log = logging.getLogger("slamlab")
 
 # Created exclusively when a run starts: two processes given the same folder cannot both run.
 CLAIM_FILE = RunFile.CLAIM
+
+
+# Runs started in this process so far (this one included): a job of a launcher that reuses
+# its worker processes is not the first.
+_RUNS_BEFORE = [0]
+SCOPE_REUSED = "run, in a process that ran other runs before"
 
 
 class RunDirectoryInUse(SlamlabError):
@@ -290,7 +298,9 @@ def _finish_background(pool: ThreadPoolExecutor, job: Future, failing: bool = Fa
             interrupted = True
     pool.shutdown()
     if failing and job.exception() is not None:
-        log.error("writing the map failed too: %s", job.exception())
+        going_up = sys.exc_info()[1]
+        if not (isinstance(job.exception(), DiskFullError) and isinstance(going_up, DiskFullError)):  # said once
+            log.error("writing the map failed too: %s", job.exception())
     if interrupted:
         raise KeyboardInterrupt
 
@@ -318,6 +328,7 @@ def run_pipeline(
     t0 = time.perf_counter()
     cpu0 = time.process_time()  # CPU s of this process: comparable when jobs share the cores
     memory = RunPeakMemory()  # this run's own peak, also when a sweep runs many in one process
+    _RUNS_BEFORE[0] += 1
     stopper: StopOnSigint | None = None
     metrics: RunMetrics | None = None
     try:
@@ -354,15 +365,16 @@ def run_pipeline(
             metrics = filter_metrics(seq, result, cfg)
             metrics.cpu_time_s = cpu_slam
             metrics = replace(metrics, **accuracy_metrics(seq, result))
-            consistency, consistency_series = consistency_metrics(seq, result.trajectory, result.log_odds, setup.components.map)
-            metrics.consistency = consistency
+            consistency = consistency_metrics(seq, result.trajectory, result.log_odds, setup.components.map)
+            metrics.consistency = consistency.summary
             run.write_trajectory(TrajectoryKind.SLAM, result.times, result.trajectory)
             run.write_trajectory(TrajectoryKind.CAUSAL, result.times, result.causal)
             run.write_trajectory(TrajectoryKind.ODOMETRY, result.times, result.odometry)
             if seq.ground_truth is not None:
                 run.write_trajectory(TrajectoryKind.GROUNDTRUTH, result.times, seq.ground_truth.poses[: len(result.times)])
             artifacts.write_steps(run_dir, result.steps)
-            artifacts.write_consistency(run_dir, consistency_series)
+            artifacts.write_consistency(run_dir, consistency.series)
+            run.write_consistency_map(consistency.overlay)
             relations = relation_table(seq, result)
             if relations is not None:
                 artifacts.write_table(run / RunFile.RELATIONS, relations)
@@ -389,7 +401,10 @@ def run_pipeline(
         metrics.total_runtime_s = time.perf_counter() - t0
         metrics.total_cpu_time_s = time.process_time() - cpu0
         metrics.peak_memory_mb = memory.peak_mb()
-        metrics.peak_memory_scope = memory.scope
+        # a process that ran other runs before this one still holds some of what they
+        # allocated: this run's peak then sits on that floor (`slamlab -m` runs each job in a
+        # fresh child process; a launcher's reused workers do not)
+        metrics.peak_memory_scope = memory.scope if _RUNS_BEFORE[0] == 1 or memory.scope != "run" else SCOPE_REUSED
         run.write_metrics(metrics)
         release_freed_memory()  # the report (in the CLI) or a sweep's next run starts from what is held
     except KeyboardInterrupt:

@@ -160,6 +160,15 @@ def make_run_dir(
         "peak_memory_mb": round(200 + particles * 0.5, 1),
         "resample_count": int(resampled.sum()), "neff_mean": float(neff.mean()), "neff_min": float(neff.min()),
         "trajectory_fill": "odometry",
+        "peak_memory_scope": "run",
+        # the map-consistency verdict (slamlab.eval.consistency), as a run writes it
+        "consistency": {"scans_scored": n, "hit_fraction_mean": 0.95, "hit_fraction_p10": 0.9,
+                        "hit_fraction_worst_window": 0.85, "contradiction_share": round(0.02 + 0.1 / np.sqrt(particles), 4),
+                        "see_through_share": 0.01, "in_free_share": 0.01,
+                        "contradiction_worst_window": round(0.05 + 0.2 / np.sqrt(particles), 4),
+                        "broken_threshold": 0.4, "window_scans": 25, "verdict": "consistent",
+                        "verdict_text": "consistent: no stretch of 25 replayed scans contradicts the map in 40% of its beams"
+                                        " or more", "broken_spans": []},
     }
     if groundtruth:
         metrics["trajectory"] = {

@@ -156,3 +156,37 @@ def test_benchmark_logs_through_the_cache(shared_data, tmp_path, monkeypatch, lo
     assert_identical(parsed, cold)
     assert_identical(parsed, warm)
     assert parse_warnings == cold_warnings == warm_warnings
+
+
+def test_an_entry_edited_on_disk_is_caught_said_once_and_parsed_again(cache, tmp_path):
+    """Issue 45: a cached file with one range changed (same size, still a valid .npy) was read
+    back silently. Its checksum no longer matches: one warning naming it, the log is parsed
+    again (the scans are the log's, not the edit) and the entry is written again."""
+    path = write(tmp_path / "log.clf", SMALL_LOG)
+    parsed, _ = load(path)
+    load(path, cache=True)
+    (entry,) = entries(cache)
+    victim = entry / "0.ranges.npy"
+    ranges = np.load(victim)
+    edited = ranges.copy()
+    edited.flat[2] += 1.0
+    np.save(victim, edited)
+    assert victim.stat().st_size == (entry / "0.ranges.npy").stat().st_size
+    seq, said = load(path, cache=True)
+    assert_identical(parsed, seq)
+    assert said == [(RuntimeWarning, f"{victim}: the cached copy changed since it was written (its checksum differs):"
+                                     " reading the log again")]
+    again, said = load(path, cache=True)  # repaired: no warning, the log's values
+    assert said == [] and np.array_equal(np.load(victim), ranges)
+
+
+def test_an_entry_cut_short_warns_once(cache, tmp_path):
+    path = write(tmp_path / "log.clf", SMALL_LOG)
+    parsed, _ = load(path)
+    load(path, cache=True)
+    (entry,) = entries(cache)
+    victim = entry / "0.ranges.npy"
+    victim.write_bytes(victim.read_bytes()[:-8])  # the last two float32 ranges lost
+    seq, said = load(path, cache=True)
+    assert_identical(parsed, seq)
+    assert len(said) == 1 and said[0][1].startswith(f"{victim}: the cached copy is unreadable (")

@@ -253,6 +253,9 @@ def test_ladder_sweep_runs_every_step_into_one_report(tmp_path, sim_cache):
     for i in range(5):
         m = json.loads((sweep / str(i) / "metrics.json").read_text())
         assert m["status"] == "ok"
+        # a sweep its config starts (hydra.mode: MULTIRUN) is a sweep too: each step in its own
+        # child process, its peak its own (Hydra leaves such a job's mode unset: issue 45)
+        assert m["peak_memory_scope"] == "run"
         modes[i] = (m["mode"], m["particles"], m["processed_steps"])
     assert modes[0] == ("odometry", 1, 1)
     assert "trajectory" not in json.loads((sweep / "0" / "metrics.json").read_text())

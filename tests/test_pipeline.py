@@ -218,3 +218,29 @@ def test_ctrl_c_while_the_map_is_written_waits_for_the_writer(monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         P._finish_background(pool, job)
     assert done.is_set() and len(calls) == 2
+
+
+@pytest.mark.slow
+def test_an_interrupted_run_writes_its_report_marked_interrupted(sim_cache, tmp_path):
+    """Issue 45: a run stopped by Ctrl-C got no report. It gets one, marked interrupted, from
+    what it wrote: the map and paths so far, and the verdict on them."""
+    import signal
+
+    from slamlab.cli.app import run_and_report
+    from slamlab.interrupt import RunInterrupted
+
+    cfg = make_cfg([*SHORT_SIM, f"dataset.cache_dir={sim_cache}", "texture=none"])
+
+    def ctrl_c(done: int, total: int) -> None:
+        if done >= total // 3:
+            signal.raise_signal(signal.SIGINT)  # as a terminal's Ctrl-C: the run stops after this step
+
+    with pytest.raises(RunInterrupted):
+        run_and_report(cfg, tmp_path / "r", progress=ctrl_c)
+    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert m["status"] == "interrupted" and m["partial"] is True
+    page = (tmp_path / "r" / "report.html").read_text()
+    assert '<span class="badge interrupted">interrupted</span>' in page and "This run was interrupted" in page
+    assert f"Stopped by Ctrl-C at scan {m['interrupted_at_scan']} of {m['scans_total']}" in page
+    assert 'alt="occupancy map with trajectories"' in page and 'id="verdict-line"' in page
+    assert not list((tmp_path / "r").glob(".partial-*"))

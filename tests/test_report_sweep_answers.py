@@ -5,6 +5,7 @@ raise no warning and drop no section."""
 
 from __future__ import annotations
 
+import html
 import json
 import logging
 import math
@@ -47,12 +48,15 @@ def test_verdict_calls_differences_within_the_seed_spread_ties() -> None:
 
 
 def test_verdict_with_one_seed_says_the_spread_is_unknown() -> None:
-    df = _table([(50, 0, 0.060), (100, 0, 0.03756), (150, 0, 0.03757)])
+    # issue 45: 150 particles was "worse?" for 8e-6 m; a difference under 1 % of the best is a
+    # tie whatever the spread, a larger one stays "worse?" (ranked by a single run)
+    df = _table([(50, 0, 0.060), (100, 0, 0.037560), (150, 0, 0.037568), (200, 0, 0.0385)])
     v = sweep_verdict(df, ["particles"], "trajectory.rmse_m")
     assert not v.spread_known
-    assert [s.verdict for s in v.standings] == ["best", "worse?", "worse?"]
+    assert [(s.stat.label, s.verdict) for s in v.standings] == [
+        ("particles=100", "best"), ("particles=150", "tie"), ("particles=200", "worse?"), ("particles=50", "worse?")]
     assert all(math.isnan(s.spread) for s in v.standings)
-    assert "spread is unknown" in v.summary
+    assert "spread is unknown" in v.summary and "Within 1% of it, a tie whatever the spread: particles=150." in v.summary
 
 
 def test_verdict_prefers_higher_for_max_metrics_and_skips_failed_runs() -> None:
@@ -233,3 +237,106 @@ def test_verdict_over_seeds_of_one_configuration_names_no_winner() -> None:
     v = sweep_verdict(df, [], "trajectory.rmse_m")
     assert len(v.standings) == 1
     assert v.summary == "One configuration (all runs): ATE RMSE (m) 0.06 ± 0.014 over 2 seeds; nothing to compare."
+
+
+# ---- issue 45: slamlab-report over mixed runs -------------------------------------------------
+def test_a_run_of_the_defaults_is_labelled_with_what_it_used(tmp_path: Path) -> None:
+    """A run without `particles=` ran the default 100: it is the same configuration as an
+    explicit particles=100, not "particles=–" tying with it."""
+    default = make_run_dir(tmp_path / "default", overrides=[], n_steps=40)
+    hundred = make_run_dir(tmp_path / "p100", overrides=["particles=100"], n_steps=40)
+    fifty = make_run_dir(tmp_path / "p50", overrides=["particles=50"], n_steps=40)
+    runs = [load_run(p) for p in (default, hundred, fifty)]
+    swept, values, _ = swept_parameters(runs)
+    assert swept == ["particles"] and values["particles"] == [100, 100, 50]
+    page = build_sweep_report([default, hundred, fifty], tmp_path / "out").read_text()
+    assert "particles=–" not in page
+    verdict = page[page.index('<section id="verdict">'):page.index("</section>", page.index('<section id="verdict">'))]
+    assert re.search(r"<td class=\"text\">particles=100</td><td>2</td>", verdict)  # both runs of 100, as seeds of one
+
+
+def test_runs_scored_another_way_get_their_own_verdict(tmp_path: Path) -> None:
+    """A simulated run (ATE) beside a log run (relations): two verdicts, none left out."""
+    sim = make_run_dir(tmp_path / "sim", overrides=["particles=50"], n_steps=40)
+    log = make_run_dir(tmp_path / "log", overrides=["particles=30", "dataset.path=/data/intel.clf.bz2"], n_steps=40,
+                       groundtruth=False)
+    m = json.loads((log / "metrics.json").read_text())
+    m["dataset"] = "intel"
+    m["relations"] = {"count": 100, "trans_abs_mean_m": 0.021, "rot_abs_mean_deg": 0.3}
+    (log / "metrics.json").write_text(json.dumps(m))
+    lone = make_run_dir(tmp_path / "lone", overrides=["particles=10"], n_steps=40, groundtruth=False)
+    m = json.loads((lone / "metrics.json").read_text())
+    m.pop("consistency")
+    (lone / "metrics.json").write_text(json.dumps(m))
+    page = build_sweep_report([sim, log, lone], tmp_path / "out").read_text()
+    assert "Runs scored against ground truth (ATE): 1 of 3" in page
+    assert "Runs scored against benchmark relations: 1 of 3" in page
+    assert "Not ranked (no ground truth, relations or consistency score): run lone." in page
+
+
+def test_neff_of_runs_of_very_different_lengths_is_drawn_against_the_share_of_each_run(tmp_path: Path) -> None:
+    import pandas as pd
+
+    short = make_run_dir(tmp_path / "short", overrides=["particles=50"], n_steps=40)
+    long = make_run_dir(tmp_path / "long", overrides=["particles=30"], n_steps=40)
+    steps = pd.read_csv(long / "steps.csv")
+    steps["t"] = np.linspace(0.0, 2650.0, len(steps))
+    steps.to_csv(long / "steps.csv", index=False)
+    steps = pd.read_csv(short / "steps.csv")
+    steps["t"] = np.linspace(0.0, 85.0, len(steps))
+    steps.to_csv(short / "steps.csv", index=False)
+    runs = [load_run(short), load_run(long)]
+    from slamlab.report import sweep_report
+
+    captured = {}
+    real = sweep_report.figures.neff_overlay
+    sweep_report.figures.neff_overlay = lambda curves, ylabel, xlabel: captured.update(curves=curves, xlabel=xlabel) or real(curves, ylabel, xlabel)
+    try:
+        img, note = sweep_report._neff(runs, [0, 1], ["short", "long"], ["short", "long"])
+    finally:
+        sweep_report.figures.neff_overlay = real
+    assert img is not None and "share of each run" in note and "85 to 2650 s" in note
+    assert captured["xlabel"] == "share of the run (%)"
+    for _, t, _ in captured["curves"]:
+        assert t[0] == 0.0 and t[-1] == pytest.approx(100.0)
+
+
+def test_the_ladder_sweep_ranks_no_step_against_another(tmp_path: Path) -> None:
+    steps = ["ladder_first_scan", "ladder_dead_reckoning", "ladder_predict", "ladder_few_particles", "ladder_full"]
+    root = tmp_path / "ladder"
+    make_sweep(root, [["+experiment=ladder", f"experiment={s}"] for s in steps], ["+experiment=ladder"], n_steps=40)
+    page = build_sweep_report([root], root).read_text()
+    assert "The ladder's steps" in page and "not ranked against the others" in page
+    assert "Best ATE" not in page and 'class="best"' not in page and 'class="v-best"' not in page
+
+
+def test_an_interrupted_runs_partial_results_are_drawn_and_not_ranked(tmp_path: Path) -> None:
+    """Issue 45: slamlab-report on an interrupted run said "No run wrote a map" and "No run has
+    ground truth" beside a table showing its ATE."""
+    run = make_run_dir(tmp_path / "int", overrides=["particles=30"], n_steps=40)
+    m = json.loads((run / "metrics.json").read_text())
+    m.update(status="interrupted", partial=True, error="interrupted at scan 40/300; partial results in int",
+             interrupted_at_scan=40, scans_total=300)
+    (run / "metrics.json").write_text(json.dumps(m))
+    page = build_sweep_report([run], tmp_path / "out").read_text()
+    assert "No run wrote a map" not in page and "No run has ground truth" not in page
+    assert 'alt="map of int (interrupted)"' in page  # its map, marked
+    assert 'alt="error over time of every run"' in page and 'alt="N_eff curves of all runs"' in page
+    assert '<section id="verdict">' not in page  # nothing finished: nothing ranked
+    both = build_sweep_report([run, make_run_dir(tmp_path / "ok", overrides=["particles=50"], n_steps=40)],
+                              tmp_path / "out2").read_text()
+    assert "1 failed or incomplete run not counted" in both and 'alt="map of int: particles=30 (interrupted)"' in both
+
+
+def test_the_table_says_whose_peak_memory_it_shows(tmp_path: Path) -> None:
+    from slamlab.pipeline import SCOPE_REUSED
+
+    root = tmp_path / "sw"
+    paths = make_sweep(root, particles_seed_grid([5, 10, 20], [0]), ["particles=5,10,20"], n_steps=30)
+    page = html.unescape(build_sweep_report([root], root).read_text())
+    assert "each run's own peak resident memory" in page
+    m = json.loads((paths[2] / "metrics.json").read_text())
+    m["peak_memory_scope"] = SCOPE_REUSED
+    (paths[2] / "metrics.json").write_text(json.dumps(m))
+    page = html.unescape(build_sweep_report([root], root).read_text())
+    assert "2 of 3 runs show their own peak" in page and "Run 2 ran in a process that had run others before" in page

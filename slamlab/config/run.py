@@ -66,15 +66,21 @@ class RecordConfig:
 class RunConfig:
     """One run's top-level knobs."""
 
-    particles: int = 100  # number of particles
-    seed: int = 0  # random seed: same config + seed = same trajectory, bit for bit
-    # slam | odometry (dead reckoning, no correction, for comparison)
-    # | predict (all particles move with the motion model; never weighted or resampled)
+    # Each field's docstring is its one line in `slamlab --help` (slamlab.cli.help).
+    particles: int = 100
+    """number of particles"""
+    seed: int = 0
+    """the filter's random seed: same config + seed = same trajectory, bit for bit"""
     mode: str = "slam"
+    """slam | odometry (dead reckoning, to compare) | predict (particles move, never weighted)"""
     steps: StepsConfig = field(default_factory=StepsConfig)
+    """which scans the filter processes: every k-th, after a distance or turn; a slice"""
     record: RecordConfig = field(default_factory=RecordConfig)
-    report: bool = True  # write report.html in the run directory
-    progress: str = "auto"  # auto (bar on a terminal, log lines otherwise) | bar | log | off
+    """extra files for the report: particles.npz, first_scan.npz, replay.npz"""
+    report: bool = True
+    """write report.html in the run directory"""
+    progress: str = "auto"
+    """auto (a bar on a terminal, log lines otherwise) | bar | log | off"""
 
     def __post_init__(self) -> None:
         require_int("", "particles", self.particles, 1)

@@ -6,7 +6,8 @@ and ~100 MB of transient memory) reads back from here in milliseconds. Entries l
 a temporary folder and renamed into place, so a reader never sees half an entry and two
 writers of the same entry do not clash. Arrays come back memory-mapped read-only: pages are
 read when touched. Any failure to read or write an entry counts as a miss; the caller
-parses again.
+parses again. Each array's CRC-32 is kept in meta.json and checked when the entry is read: an
+entry changed or cut short on disk is a miss too, said in one warning naming the file.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ import logging
 import os
 import shutil
 import uuid
+import warnings
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -42,15 +45,32 @@ def entry_dir(kind: str, name: str) -> Path:
     return paths.cache_dir() / kind / name
 
 
+def checksum(arr: np.ndarray) -> int:
+    """CRC-32 of an array's bytes (C order): a cached entry is checked against it when read
+    (Intel's 12.8 MB in 5 ms). Against disk damage and edits, not against an adversary."""
+    return zlib.crc32(memoryview(np.ascontiguousarray(arr)).cast("B"))
+
+
 def read_entry(kind: str, name: str) -> tuple[dict[str, np.ndarray], dict] | None:
-    """(arrays, meta) of an entry, or None when it is missing or unreadable."""
+    """(arrays, meta) of an entry, or None when it is missing, unreadable or its content is
+    not what was written (each array's CRC-32 in meta.json): a damaged or edited entry warns
+    once (RuntimeWarning, naming the file) and the caller parses again."""
     folder = entry_dir(kind, name)
+    if not (folder / META).is_file():
+        return None
+    key = META
     try:
         meta = json.loads((folder / META).read_text())
-        arrays = {key: np.asarray(np.load(folder / f"{key}.npy", mmap_mode="r")) for key in meta["arrays"]}
+        arrays = {}
+        for key in meta["arrays"]:
+            arrays[key] = np.asarray(np.load(folder / f"{key}.npy", mmap_mode="r"))
+            if checksum(arrays[key]) != int(meta["crc32"][key]):
+                warnings.warn(f"{folder / (key + '.npy')}: the cached copy changed since it was written (its checksum"
+                              " differs): reading the log again", RuntimeWarning, stacklevel=2)
+                return None
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        if folder.exists():
-            log.debug("cache entry %s unreadable (%s): parsing again", folder, exc)
+        warnings.warn(f"{folder / (key if key == META else key + '.npy')}: the cached copy is unreadable ({exc}):"
+                      " reading the log again", RuntimeWarning, stacklevel=2)
         return None
     return arrays, meta
 
@@ -66,7 +86,8 @@ def write_entry(kind: str, name: str, arrays: dict[str, np.ndarray], meta: dict)
         tmp.mkdir(parents=True)
         for key, arr in arrays.items():
             np.save(tmp / f"{key}.npy", np.ascontiguousarray(arr), allow_pickle=False)
-        (tmp / META).write_text(json.dumps({**meta, "arrays": list(arrays)}))
+        crc = {key: checksum(arr) for key, arr in arrays.items()}
+        (tmp / META).write_text(json.dumps({**meta, "arrays": list(arrays), "crc32": crc}))
         if folder.exists():  # a broken entry: move it aside (readers of its files keep them)
             old = folder.parent / f".old-{tag}"
             try:

@@ -655,8 +655,9 @@ def _parse_log(path: Path, max_range_m: float | None, on_bad_line: str) -> _Pars
 # Logs at least this big (bytes on disk) are cached when asked: parsing a smaller one costs
 # about as much as hashing and reading the entry back.
 CACHE_MIN_BYTES = 256 << 10
-# Bump when the parse's output for a given file and options changes.
-_CACHE_VERSION = 1
+# Bump when the parse's output for a given file and options changes (2: entries carry their
+# arrays' checksums, which version 1's did not).
+_CACHE_VERSION = 2
 _CACHE_KIND = "carmen"
 
 

@@ -3,6 +3,7 @@ when complete, so an interrupted process never leaves a half-written file behind
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import zipfile
@@ -12,18 +13,74 @@ from pathlib import Path
 
 import numpy as np
 
+from slamlab.errors import SlamlabError
+
 # Prefix of the temporary names; `remove_partials` deletes what a killed process left.
 TMP_MARK = ".partial-"
 
 
+class DiskFullError(SlamlabError):
+    """No space left on the device a file is written to: names the file and the device."""
+
+
+# Free space (bytes) below which a failed write is taken for a full disk even when the writer
+# did not say ENOSPC (Open3D only says that it could not write).
+NEARLY_FULL_BYTES = 1 << 20
+
+
+def device_of(path: Path) -> str:
+    """'DEVICE (mounted at MOUNT)' for the filesystem holding `path` (Linux's mountinfo: the
+    mount whose device number is the path's); the mount point alone where that is unknown."""
+    path = Path(path)
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    try:
+        dev = os.stat(path).st_dev
+        want = f"{os.major(dev)}:{os.minor(dev)}"
+        best = None
+        with open("/proc/self/mountinfo", encoding="utf-8") as f:
+            for line in f:
+                left, _, right = line.partition(" - ")
+                fields = left.split()
+                if len(fields) >= 5 and fields[2] == want:
+                    mount, source = fields[4], (right.split() + ["?", "?"])[1]
+                    if best is None or len(mount) > len(best[0]):  # the innermost mount of that device
+                        if str(path.resolve()).startswith(mount):
+                            best = (mount, source)
+        if best is not None:
+            return f"{best[1]} (mounted at {best[0]})"
+    except OSError:
+        pass
+    mount = Path(path).resolve()
+    while not os.path.ismount(mount) and mount != mount.parent:
+        mount = mount.parent
+    return f"the device mounted at {mount}"
+
+
+def _is_disk_full(exc: OSError, path: Path) -> bool:
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    try:
+        st = os.statvfs(path.parent)
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < NEARLY_FULL_BYTES
+
+
 @contextmanager
 def atomic_path(path: Path) -> Iterator[Path]:
-    """Yield a temporary path beside `path`; rename it to `path` only if the block succeeds."""
+    """Yield a temporary path beside `path`; rename it to `path` only if the block succeeds.
+    The temporary file never stays. A full disk raises DiskFullError naming `path` and the
+    device (one line for the user, no traceback)."""
     path = Path(path)
     tmp = path.with_name(f"{TMP_MARK}{os.getpid()}-{path.name}")
     try:
         yield tmp
         os.replace(tmp, path)
+    except OSError as exc:
+        if _is_disk_full(exc, path):
+            raise DiskFullError(f"no space left on {device_of(path)} while writing {path}") from None
+        raise
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -43,6 +43,7 @@ class RunFile(StrEnum):
     GROUNDTRUTH = "groundtruth.tum"
     STEPS_CSV = "steps.csv"
     CONSISTENCY = "consistency.csv"
+    CONSISTENCY_MAP = "consistency_map.npz"  # where the scans contradict the map (the report's overlay)
     PARTICLES = "particles.npz"  # record.particles
     REPLAY = "replay.npz"  # record.replay
     RELATIONS = "relations.csv"  # logs with benchmark relations
@@ -65,6 +66,7 @@ class RunFile(StrEnum):
     HYDRA_DIR = ".hydra"
     HYDRA_CONFIG = ".hydra/config.yaml"
     HYDRA_OVERRIDES = ".hydra/overrides.yaml"
+    HYDRA_RECORD = ".hydra/hydra.yaml"
 
 
 class SweepFile(StrEnum):
@@ -249,6 +251,10 @@ class RunDirectory:
     def write_first_scan(self, scan: FirstScan) -> None:
         write_npz(self.path / RunFile.FIRST_SCAN, **{f.name: getattr(scan, f.name) for f in fields(scan)})
 
+    def write_consistency_map(self, arrays: dict[str, np.ndarray]) -> None:
+        """consistency_map.npz: the consistency replay's overlay layers (`slamlab.eval.consistency`)."""
+        write_npz(self.path / RunFile.CONSISTENCY_MAP, **arrays)
+
     def write_replay(self, **arrays: np.ndarray) -> None:
         """replay.npz: the snapshot arrays of `slamlab.slam.replay` plus `scan_index`, `t`."""
         write_npz_fast(self.path / RunFile.REPLAY, **arrays)
@@ -269,6 +275,19 @@ class RunDirectory:
         """Hydra's saved task overrides (`key=value` strings); [] when none are recorded."""
         overrides = read_yaml(self.path / RunFile.HYDRA_OVERRIDES)
         return [str(o) for o in overrides] if isinstance(overrides, list) else []
+
+    def read_choices(self) -> dict[str, str]:
+        """The config group choices the run was composed with (Hydra's record,
+        .hydra/hydra.yaml `hydra.runtime.choices`: e.g. {"filter": "rbpf", "experiment":
+        "lidar2d"}; Hydra's own groups left out); {} when not recorded."""
+        record = read_yaml(self.path / RunFile.HYDRA_RECORD)
+        try:
+            choices = record["hydra"]["runtime"]["choices"]
+        except (TypeError, KeyError):
+            return {}
+        if not isinstance(choices, dict):
+            return {}
+        return {str(k): str(v) for k, v in choices.items() if not str(k).startswith("hydra/") and v is not None}
 
     def read_trajectory(self, which: TrajectoryKind | str) -> tuple[np.ndarray, np.ndarray] | None:
         """(times (N,) s, poses (N, 3) x m, y m, yaw rad); None if absent or empty."""

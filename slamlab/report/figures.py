@@ -24,7 +24,7 @@ from slamlab.io.png import grey_rgba
 from slamlab.io.table import Table
 from slamlab.report.mpl import Figure, colormaps  # headless, without docstring tables (mpl.py)
 from slamlab.report.rundir import LogOddsMap, Trajectory
-from slamlab.slam.replay import block_max
+from slamlab.numeric import block_max
 
 DPI = 90
 # Fixed colours per trajectory kind, so every figure reads the same way.
@@ -63,20 +63,46 @@ def fig_to_data_uri(fig: Figure, dpi: int = DPI, fmt: str = "png") -> str:
     return f"data:image/{fmt};base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def png_file_to_data_uri(path: Path, max_px: int = 900, min_px: int = 420, crop: bool = True,
-                         margin_px: int = 12) -> str:
-    """Embed an existing PNG (e.g. texture.png): cropped to its content (texture rasters span
-    the whole map grid and are mostly empty background) and shrunk so the longest side is
-    <= max_px. Background = the colour of the top-left pixel (transparent or unknown-grey)."""
+def content_box(path: Path) -> tuple[int, int, int, int] | None:
+    """(x0, y0, x1, y1) pixels of a PNG's content: where it differs from the colour of its
+    top-left pixel (transparent or unknown-grey) by more than a little; None if nowhere."""
     from PIL import Image, ImageChops  # pillow ships with matplotlib
 
     with Image.open(path) as src:
         im = src.convert("RGBA")
+    bg = Image.new("RGBA", im.size, im.getpixel((0, 0)))
+    # Tolerance: anti-aliased edges and near-grey pixels must not defeat the crop.
+    return ImageChops.difference(im, bg).convert("L").point(lambda v: 255 if v > 12 else 0).getbbox()
+
+
+def common_content_box(paths: Sequence[Path]) -> tuple[int, int, int, int] | None:
+    """The union of the content boxes of images of one size (the texture rasters of one map
+    grid): cutting each to it keeps them the same size, cell under cell. None when the sizes
+    differ or nothing has content (each is then cut to its own)."""
+    from PIL import Image
+
+    sizes = set()
+    for p in paths:
+        with Image.open(p) as im:
+            sizes.add(im.size)
+    boxes = [b for p in paths if (b := content_box(p)) is not None]
+    if len(sizes) != 1 or not boxes:
+        return None
+    return (min(b[0] for b in boxes), min(b[1] for b in boxes), max(b[2] for b in boxes), max(b[3] for b in boxes))
+
+
+def png_file_to_data_uri(path: Path, max_px: int = 900, min_px: int = 420, crop: bool = True,
+                         margin_px: int = 12, box: tuple[int, int, int, int] | None = None) -> str:
+    """Embed an existing PNG (e.g. texture.png): cropped to its content (texture rasters span
+    the whole map grid and are mostly empty background), or to `box` when given (images to be
+    compared side by side: `common_content_box`), plus a margin, and shrunk so the longest side
+    is <= max_px. Background = the colour of the top-left pixel (transparent or unknown-grey)."""
+    from PIL import Image
+
+    with Image.open(path) as src:
+        im = src.convert("RGBA")
     if crop:
-        bg = Image.new("RGBA", im.size, im.getpixel((0, 0)))
-        # Tolerance: anti-aliased edges and near-grey pixels must not defeat the crop.
-        diff = ImageChops.difference(im, bg).convert("L").point(lambda v: 255 if v > 12 else 0)
-        bbox = diff.getbbox()
+        bbox = box if box is not None else content_box(path)
         if bbox is not None:
             x0, y0, x1, y1 = bbox
             im = im.crop((max(0, x0 - margin_px), max(0, y0 - margin_px),
@@ -212,8 +238,14 @@ def step_times(steps: Table) -> np.ndarray:
 
 
 def neff_plot(steps: Table, particles: int | None, threshold: float | None) -> str:
+    return fig_to_data_uri(neff_figure(steps, particles, threshold))
+
+
+def neff_figure(steps: Table, particles: int | None, threshold: float | None) -> Figure:
     """N_eff per step over time, the resampling threshold, and the resampling events as a
-    thin strip of ticks below (readable whether the filter resampled 3 or 3000 times)."""
+    thin strip of ticks below (readable whether the filter resampled 3 or 3000 times). When
+    most steps resample, the strip marks the steps that did not (a tick at 95 % of the steps
+    would be a solid bar)."""
     fig, (ax, strip) = subplots(2, 1, figsize=(13.0, 3.6), sharex=True, gridspec_kw={"height_ratios": [1, 0.14], "hspace": 0.08})
     t = step_times(steps)
     ax.plot(t, np.asarray(steps["neff"], dtype=float), lw=0.8, color="#1f77b4", label="N_eff")
@@ -226,20 +258,35 @@ def neff_plot(steps: Table, particles: int | None, threshold: float | None) -> s
     ax.grid(alpha=0.3)
     ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
     mask = np.asarray(steps["resampled"], dtype=bool) if "resampled" in steps else np.zeros(len(t), bool)
-    if mask.any():
-        strip.eventplot(t[mask], colors="#ff7f0e", linelengths=0.8, linewidths=0.6)
+    share = 100.0 * mask.mean() if len(t) else 0.0
+    mostly = share > 50.0
+    marked = ~mask if mostly else mask
+    if marked.any():
+        strip.eventplot(t[marked], colors="#7f7f7f" if mostly else "#ff7f0e", linelengths=0.8, linewidths=0.6)
     strip.set_yticks([])
-    strip.set_ylabel("resampled", rotation=0, ha="right", va="center", fontsize=8)
-    strip.text(1.005, 0.5, f"{int(mask.sum())} of {len(t)} steps ({100.0 * mask.mean() if len(t) else 0:.0f} %)",
+    strip.set_ylabel("not resampled" if mostly else "resampled", rotation=0, ha="right", va="center", fontsize=8)
+    strip.text(1.005, 0.5, f"resampled at {int(mask.sum())} of {len(t)} steps ({share:.0f} %)"
+               + ("; ticks: the steps that did not" if mostly else ""),
                transform=strip.transAxes, fontsize=8, va="center")
     strip.set_xlabel("time since first step (s)")
-    return fig_to_data_uri(fig)
+    return fig
+
+
+# A first step this many times the others' median is the one-off start (numba compiling or
+# loading the kernels): left out of the step-time axis and said in a note.
+WARMUP_RATIO = 10.0
 
 
 def weight_and_time_plot(steps: Table) -> str:
+    return fig_to_data_uri(weight_and_time_figure(steps))
+
+
+def weight_and_time_figure(steps: Table) -> Figure:
     """Best particle weight and filter step time over time, stacked with a shared time axis.
-    Step times on a log axis: the first step (JIT compilation, ~0.5 s) would otherwise flatten
-    the typical few-ms step into a line at zero."""
+    Step times on a log axis: the typical few-ms step would otherwise be a line at zero. The
+    first step pays for compiling or loading the kernels (seconds): when it is WARMUP_RATIO
+    times the others' median it is left out of the axis, the median and the percentile, and a
+    note gives its time."""
     fig, (a1, a2) = subplots(2, 1, figsize=(13.0, 4.6), sharex=True)
     t = step_times(steps)
     if "best_weight" in steps:
@@ -248,40 +295,26 @@ def weight_and_time_plot(steps: Table) -> str:
     a1.grid(alpha=0.3)
     if "step_time_s" in steps:
         st = np.asarray(steps["step_time_s"], dtype=float) * 1000.0
-        st_pos = np.maximum(st, 1e-3)  # a log axis cannot show 0 ms
-        a2.plot(t, st_pos, lw=0.5, color="#8c564b", alpha=0.8)
-        if st.size:
-            med, p99 = float(np.median(st)), float(np.percentile(st, 99))
+        warmup = st.size > 2 and st[0] > WARMUP_RATIO * float(np.median(st[1:]))
+        tt, shown = (t[1:], st[1:]) if warmup else (t, st)
+        st_pos = np.maximum(shown, 1e-3)  # a log axis cannot show 0 ms
+        a2.plot(tt, st_pos, lw=0.5, color="#8c564b", alpha=0.8)
+        if shown.size:
+            med, p99 = float(np.median(shown)), float(np.percentile(shown, 99))
             a2.axhline(med, color="black", ls=":", lw=0.9, label=f"median {med:.1f} ms")
             a2.axhline(p99, color="#d62728", ls="--", lw=0.8, label=f"99th percentile {p99:.1f} ms")
-            worst = int(np.argmax(st))
-            a2.plot(t[worst], st_pos[worst], "o", mfc="none", color="#d62728", ms=7, label=f"slowest {st[worst]:.0f} ms")
+            worst = int(np.argmax(shown))
+            a2.plot(tt[worst], st_pos[worst], "o", mfc="none", color="#d62728", ms=7, label=f"slowest {shown[worst]:.0f} ms")
             a2.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
+        if warmup:
+            a2.text(1.005, 0.0, f"first step {st[0]:.0f} ms\n(compiling or loading\nthe kernels): left out",
+                    transform=a2.transAxes, fontsize=8, va="bottom")
         a2.set_yscale("log")
     a2.set_ylabel("step time (ms, log)")
     a2.set_xlabel("time since first step (s)")
     a2.grid(alpha=0.3, which="both")
     fig.tight_layout()
-    return fig_to_data_uri(fig)
-
-
-def consistency_plot(series: Table) -> str:
-    """Per-scan hit fraction of the consistency replay over time, with a rolling median:
-    a drop marks where the map broke (slamlab.eval.consistency)."""
-    fig, ax = subplots(figsize=(13.0, 2.8))
-    t = step_times(series)
-    y = np.asarray(series["hit_fraction"], dtype=float)
-    ax.plot(t, y, lw=0.5, color="#7f7f7f", alpha=0.6, label="per scan")
-    if y.size:
-        win = max(1, y.size // 40)
-        smooth = rolling_median(y, win)
-        ax.plot(t, smooth, lw=1.4, color="#1f77b4", label=f"rolling median ({win} scans)")
-    ax.set_ylim(0.0, 1.02)
-    ax.set_ylabel("scan hits on map")
-    ax.set_xlabel("time since first scan (s)")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
-    return fig_to_data_uri(fig)
+    return fig
 
 
 def trajectories_overlay(
@@ -310,17 +343,23 @@ def trajectories_overlay(
     return fig_to_data_uri(fig)
 
 
-def neff_overlay(curves: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str) -> str:
+def neff_overlay(curves: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str,
+                 xlabel: str = "time since first step (s)") -> str:
+    return fig_to_data_uri(neff_overlay_figure(curves, ylabel, xlabel))
+
+
+def neff_overlay_figure(curves: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str,
+                        xlabel: str = "time since first step (s)") -> Figure:
     """N_eff (or N_eff / N) curves of several runs on one axis."""
     fig, ax = subplots(figsize=(10.0, 3.8))
     colours = colormaps["tab10" if len(curves) <= 10 else "tab20"]
     for i, (label, t, y) in enumerate(curves):
         ax.plot(t, y, lw=0.8, color=colours(i % colours.N), label=label)
-    ax.set_xlabel("time since first step (s)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3)
     ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8)
-    return fig_to_data_uri(fig)
+    return fig
 
 
 @dataclass(frozen=True, slots=True)

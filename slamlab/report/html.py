@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import jinja2
+from markupsafe import Markup, escape
 
 from slamlab.artifacts import write_text
 from slamlab.paths import cache_dir
@@ -43,6 +44,8 @@ def environment() -> jinja2.Environment:
     sweep's run pages compile them once; across processes `compiled_templates` keeps them."""
     env = make_environment(jinja2.FileSystemLoader(str(TEMPLATE_DIR)), compiled_templates())
     env.filters["num"] = fmt_number
+    env.filters["count"] = count_text  # {{ n|count("snapshot") }}: 1 snapshot, 100 snapshots
+    env.filters["wbr"] = break_points  # {{ key|wbr }}: a long key may wrap after its dots, slashes, underscores
     return env
 
 
@@ -76,6 +79,24 @@ def compiled_templates() -> jinja2.BytecodeCache | None:
 def render(template: str, **context: Any) -> str:
     """Render a template from slamlab/report/templates."""
     return environment().get_template(template).render(**context)
+
+
+def break_points(text: Any) -> Markup:
+    """`text` escaped for HTML, with a line-break opportunity (<wbr>) after each '.', '/' and
+    '_': a table header such as dataset.duration_s then wraps at its parts, never mid-word."""
+    escaped = str(escape(str(text)))
+    for ch in "./_":
+        escaped = escaped.replace(ch, ch + "<wbr>")
+    return Markup(escaped)
+
+
+def count_text(n: Any, noun: str) -> str:
+    """A count with its noun in the right number: 1 particle, 3 particles (nouns in -s, -x or
+    -ch take -es)."""
+    if n is None:
+        return f"? {noun}s"
+    plural = noun + ("es" if noun.endswith(("s", "x", "ch")) else "s")
+    return f"{fmt_number(n)} {noun if n == 1 else plural}"
 
 
 def fmt_number(v: Any, digits: int = 4) -> str:

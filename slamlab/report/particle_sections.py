@@ -18,7 +18,7 @@ from slamlab.report import particle_figures
 from slamlab.report.figures import fig_to_data_uri
 from slamlab.report.html import fmt_number
 from slamlab.report.rundir import RunDir
-from slamlab.slam.weighting import OVERFLOW_SCORE
+from slamlab.numeric import OVERFLOW_SCORE
 
 # The weights section is for a handful of particles: a column each.
 WEIGHTS_MAX_PARTICLES = 10

@@ -22,7 +22,7 @@ from slamlab.eval.trajectory import sample_onto
 from slamlab.frames import GridImage
 from slamlab.io.rundir import RunFile
 from slamlab.report.rundir import RunDir, Trajectory
-from slamlab.slam.replay import snapshot_steps
+from slamlab.numeric import evenly_spaced
 
 FRAME_PX = 640  # longest side of a replay frame (pixels)
 MAX_PATH_POINTS = 3000
@@ -114,17 +114,27 @@ def replay_section(run: RunDir) -> ReplaySection | None:
         keep = sorted(set(range(0, len(frames), every)) | {len(frames) - 1})
         frames, snaps = [frames[i] for i in keep], [snaps[i] for i in keep]
 
-    data: dict = {"window": window, "w": w, "h": h, "snaps": snaps, "t0": float(z["t"][0])}
+    data: dict = {"window": window, "w": w, "h": h, "snaps": snaps, "t0": float(z["t"][0]),
+                  "scale": scale_bar((window[1] - window[0]) / w)}
     if best_path is not None:
-        keep = snapshot_steps(len(best_path), MAX_PATH_POINTS)
+        keep = evenly_spaced(len(best_path), MAX_PATH_POINTS)
         data["path"] = {"t": np.round(best_path.t[keep] - z["t"][0], 3).tolist(), "xy": np.round(best_path.xy[keep], 2).tolist()}
     steps = run.load_steps()
     if steps is not None and "neff" in steps and len(steps):
-        keep = snapshot_steps(len(steps), MAX_CURVE_POINTS)
+        keep = evenly_spaced(len(steps), MAX_CURVE_POINTS)
         t = np.asarray(steps["t"], float) - z["t"][0] if "t" in steps else np.arange(len(steps), dtype=float)
         data["neff"] = {"t": np.round(t[keep], 2).tolist(), "v": np.round(np.asarray(steps["neff"], float)[keep], 2).tolist(),
                         "n": run.particles or float(np.nanmax(steps["neff"]))}
     return ReplaySection(frames=frames, data_json=json.dumps(data, separators=(",", ":")), width=w, height=h, count=len(frames))
+
+
+def scale_bar(m_per_px: float, target_px: float = 110.0) -> dict[str, float]:
+    """The replay's scale bar: a round length (1, 2 or 5 x 10^k m) about `target_px` long at
+    `m_per_px`, as {"m": length, "px": its pixels}."""
+    want = target_px * m_per_px
+    k = 10.0 ** np.floor(np.log10(want))
+    m = min((f * k for f in (1.0, 2.0, 5.0, 10.0)), key=lambda v: abs(np.log(v / want)))
+    return {"m": float(f"{m:.6g}"), "px": round(m / m_per_px, 2)}
 
 
 def replay_size_bytes(section: ReplaySection) -> int:

@@ -15,9 +15,11 @@ import numpy as np
 import yaml
 
 from slamlab.report import error_figures, figures, particle_sections
+from slamlab.report.consistency_section import consistency_section
+from slamlab.report.extra_sections import extra_sections
 from slamlab.report.ground_frames import ground_frames_section
 from slamlab.report.replay_section import replay_section
-from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
+from slamlab.report.html import atomic_write_text, count_text, fmt_number, now_text, package_version, render
 from slamlab.io.rundir import RunFile
 from slamlab.report.rundir import RunDir, flatten, load_run
 
@@ -85,9 +87,9 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
     elif m.get("mode") == "odometry":
         out.append(("filter", "none (dead reckoning)"))
     elif m.get("mode") == "predict":
-        out.append(("filter", f"prediction only, {m.get('particles', '?')} particles"))
+        out.append(("filter", f"prediction only, {count_text(m.get('particles'), 'particle')}"))
     elif "filter" in m:
-        out.append(("filter", f"{m['filter']}, {m.get('particles', '?')} particles"))
+        out.append(("filter", f"{m['filter']}, {count_text(m.get('particles'), 'particle')}"))
     traj = m.get("trajectory") if isinstance(m.get("trajectory"), dict) else {}
     if "rmse_m" in traj:
         out.append(("ATE RMSE (m)", fmt_number(traj["rmse_m"])))
@@ -121,7 +123,10 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
         out.append(("texture colour error, SLAM / odometry (0-255)",
                     f"{fmt_number(tex['colour_error'])} / {fmt_number(odo_tex.get('colour_error'))}"))
     cons = m.get("consistency") if isinstance(m.get("consistency"), dict) else {}
-    if "hit_fraction_mean" in cons:
+    if "contradiction_worst_window" in cons:
+        out.append(("beams contradicting the map: whole run / worst stretch",
+                    f"{fmt_number(cons.get('contradiction_share'))} / {fmt_number(cons['contradiction_worst_window'])}"))
+    elif "hit_fraction_mean" in cons:  # runs before the verdict (2026-11-29)
         out.append(("scan hits on map / wall conflicts", f"{fmt_number(cons['hit_fraction_mean'])} / {fmt_number(cons.get('conflict_fraction', float('nan')))}"))
     for key, label in (("runtime_s", "filter runtime (s)"), ("scans_per_s", "scans/s"),
                        ("realtime_factor", "× real time"), ("peak_memory_mb", "peak memory (MB)"),
@@ -151,6 +156,33 @@ def _error_over_time(run: RunDir, trajs: dict[str, Any]) -> tuple[str | None, st
                 f"{len(table)} benchmark relations (relations.csv), each plotted at its start time: the error of the"
                 " estimated motion between two scans against the reference. Points per relation, lines a rolling median.")
     return None, ""
+
+
+TEXTURE_CAPTIONS = {
+    RunFile.TEXTURE: "Floor texture from RGB-D along the SLAM trajectory",
+    RunFile.TEXTURE_TRUTH: "The true floor texture (simulated), on the cells the SLAM texture covers",
+    RunFile.TEXTURE_ODOMETRY: "Texture along the odometry trajectory (for comparison)",
+    RunFile.TEXTURE_OVER_MAP: "SLAM texture over the occupancy map",
+    RunFile.TEXTURE_ODOMETRY_OVER_MAP: "Odometry texture over the occupancy map",
+}
+# Images shown side by side to be compared cell by cell: each group is cut to one window (the
+# union of its images' content), so they come out the same size, cell under cell.
+TEXTURE_GROUPS = ((RunFile.TEXTURE, RunFile.TEXTURE_TRUTH, RunFile.TEXTURE_ODOMETRY),
+                  (RunFile.TEXTURE_OVER_MAP, RunFile.TEXTURE_ODOMETRY_OVER_MAP))
+
+
+def texture_gallery(run: RunDir) -> list[dict[str, Any]]:
+    """The texture images at native resolution (one image pixel per map cell), each group cut
+    to one common window, shown enlarged by a whole factor to >= ~TEXTURE_MIN_PX."""
+    out = []
+    for group in TEXTURE_GROUPS:
+        paths = {name: p for name in group if (p := run.file(name)) is not None}
+        box = figures.common_content_box(list(paths.values()))
+        for name, p in paths.items():
+            uri = figures.png_file_to_data_uri(p, max_px=4000, min_px=0, box=box)
+            w, h = figures.png_size(uri)
+            out.append({"caption": TEXTURE_CAPTIONS[name], "uri": uri, "width": w * max(1, TEXTURE_MIN_PX // max(w, h, 1))})
+    return out
 
 
 def rerun_commands(run: RunDir) -> tuple[str, str | None]:
@@ -196,22 +228,7 @@ def render_run_report(run: RunDir) -> str:
         )
 
     error_img, error_note = _error_over_time(run, trajs)
-    textures = []
-    captions = {
-        RunFile.TEXTURE: "Floor texture from RGB-D along the SLAM trajectory",
-        RunFile.TEXTURE_TRUTH: "The true floor texture (simulated), on the cells the SLAM texture covers",
-        RunFile.TEXTURE_ODOMETRY: "Texture along the odometry trajectory (for comparison)",
-        RunFile.TEXTURE_OVER_MAP: "SLAM texture over the occupancy map",
-        RunFile.TEXTURE_ODOMETRY_OVER_MAP: "Odometry texture over the occupancy map",
-    }
-    for name in captions:
-        p = run.file(name)
-        if p is not None:
-            # native resolution (cropped to the textured area): one image pixel per map cell
-            uri = figures.png_file_to_data_uri(p, max_px=4000, min_px=0)
-            w, h = figures.png_size(uri)
-            # shown enlarged by a whole factor to >= ~420 px (cells stay square and crisp)
-            textures.append({"caption": captions[name], "uri": uri, "width": w * max(1, TEXTURE_MIN_PX // max(w, h, 1))})
+    textures = texture_gallery(run)
 
     steps = run.load_steps()
     neff_img = weight_img = None
@@ -223,15 +240,13 @@ def render_run_report(run: RunDir) -> str:
         weight_img = figures.weight_and_time_plot(steps)
         n_res = int(np.asarray(steps["resampled"], dtype=bool).sum()) if "resampled" in steps else 0
         neff_note = (
-            f"{len(steps)} filter steps; resampled {n_res} times (orange ticks in the strip below the curve)."
+            f"{count_text(len(steps), 'filter step')}; resampled {count_text(n_res, 'time')} "
+            + ("(grey ticks in the strip below the curve: the steps that did not resample)." if n_res > len(steps) / 2
+               else "(orange ticks in the strip below the curve).")
             + (f" Dashed red line: resampling threshold ({thr_src})." if thr is not None else f" No threshold line: {thr_src}.")
         )
 
-    consistency_img = None
-    series = run.files.read_columns(RunFile.CONSISTENCY)
-    if series is not None:
-        if len(series) > 1:  # one replayed scan has no "over time" (as for N_eff above)
-            consistency_img = figures.consistency_plot(series)
+    consistency = consistency_section(run)
 
     cmd, exact = rerun_commands(run)
     man = run.manifest
@@ -263,7 +278,7 @@ def render_run_report(run: RunDir) -> str:
     if run.dataset:
         title_bits.append(run.dataset)
     if run.particles:
-        title_bits.append(f"{run.particles} particles")
+        title_bits.append(count_text(run.particles, "particle"))
     if run.seed is not None:
         title_bits.append(f"seed {run.seed}")
     return render(
@@ -280,7 +295,8 @@ def render_run_report(run: RunDir) -> str:
         neff_note=neff_note,
         single_step=steps is not None and len(steps) == 1,
         weight_img=weight_img,
-        consistency_img=consistency_img,
+        consistency=consistency,
+        extras=extra_sections(run),
         error_img=error_img,
         error_note=error_note,
         replay=replay_section(run),

@@ -129,6 +129,25 @@ class RunDir:
                 plain.add(name)
         return out
 
+    def setting(self, key: str) -> Any:
+        """What the run used for `key` (a dotted config key, or a config group such as
+        "filter" or "experiment") when no override of its own says: the group's choice from
+        Hydra's record, else the resolved config's value; None when neither knows it."""
+        choice = self.choices.get(key)
+        if choice is not None:
+            return choice
+        node: Any = self.config
+        for part in key.split("."):
+            if not isinstance(node, dict) or part not in node:
+                return None
+            node = node[part]
+        return None if isinstance(node, (dict, list)) else node
+
+    @property
+    def choices(self) -> dict[str, str]:
+        """The config group choices (`RunDirectory.read_choices`), read once."""
+        return self._cached("choices", self.files.read_choices)
+
     @property
     def files(self) -> RunDirectory:
         """The run directory contract on this folder (names, readers)."""

@@ -43,11 +43,37 @@ def _fixed_layout_uri(fig: Figure) -> str:
     return _png_uri(buf.getvalue())
 
 
+MAX_TICK_CHARS = 18  # a category's tick label is cut to this many characters
+
+
+def tick_label(value: str) -> str:
+    """A category as a tick label: a path by its file name, anything long cut with an ellipsis
+    (the table beside the figure has the full value)."""
+    text = str(value)
+    if "/" in text:
+        text = text.rstrip("/").rsplit("/", 1)[-1] or text
+    return text if len(text) <= MAX_TICK_CHARS else text[: MAX_TICK_CHARS - 1] + "…"
+
+
 def metric_panels(param: str, panels: Sequence[tuple[str, Sequence[Series]]],
                   categorical: Sequence[str] | None = None) -> str:
+    return _png_uri(_render(metric_panels_figure(param, panels, categorical)))
+
+
+def _render(fig: Figure) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    return buf.getvalue()
+
+
+def metric_panels_figure(param: str, panels: Sequence[tuple[str, Sequence[Series]]],
+                         categorical: Sequence[str] | None = None) -> Figure:
     """One panel per headline metric against swept parameter `param`; each Series is one
     value of the other swept parameters (same colour in every panel, one legend on top).
-    Bars: standard deviation across seeds; faint points: the single runs."""
+    Bars: standard deviation across seeds; faint points: the single runs. Every value axis
+    starts at 0 (all headline metrics are errors, times or sizes): a 0.015 degree difference
+    must not fill a panel. Category names are cut to fit (`tick_label`), and matplotlib's
+    constrained layout keeps tick labels, axis titles and the legend clear of each other."""
     labels: dict[str, int] = {}
     for panel in panels:
         for s in panel[1]:
@@ -56,11 +82,13 @@ def metric_panels(param: str, panels: Sequence[tuple[str, Sequence[Series]]],
     n = len(panels)
     ncols = min(PANELS_PER_ROW, n)
     nrows = int(math.ceil(n / ncols))
-    top_in = 0.25 + (0.25 * math.ceil(len(labels) / 4) if legend else 0.0)  # room for the legend rows
-    height_in = 3.1 * nrows + top_in
-    fig, axes = subplots(nrows, ncols, figsize=(4.6 * ncols, height_in), squeeze=False)
-    fig.subplots_adjust(left=0.8 / (4.6 * ncols), right=1 - 0.2 / (4.6 * ncols), bottom=0.75 / height_in,
-                        top=1 - top_in / height_in, wspace=0.38, hspace=0.45)
+    longest = max((len(label) for label in labels), default=1)
+    per_row = max(1, min(4, len(labels), int(4.6 * ncols * 12 // max(longest, 1))))  # ~12 characters an inch at 9 pt
+    height_in = 3.1 * nrows + (0.3 * math.ceil(len(labels) / per_row) if legend else 0.0)
+    fig = Figure(figsize=(4.6 * ncols, height_in), layout="constrained")
+    axes = np.atleast_2d(fig.subplots(nrows, ncols, squeeze=False))
+    ticks = [tick_label(c) for c in categorical] if categorical is not None else None
+    rotate = ticks is not None and (sum(len(t) for t in ticks) > 30 or max(map(len, ticks)) > 10)
     for ax, (metric_label, series) in zip(axes.flat, panels):
         for s in series:
             c = _colour(labels[s.label])
@@ -73,16 +101,17 @@ def metric_panels(param: str, panels: Sequence[tuple[str, Sequence[Series]]],
         ax.set_xlabel(param)
         ax.set_ylabel(metric_label)
         ax.grid(alpha=0.3)
-        if categorical is not None:
-            ax.set_xticks(range(len(categorical)), categorical, rotation=20, fontsize=8)
-            ax.set_xlim(-0.5, len(categorical) - 0.5)
+        ax.set_ylim(bottom=0.0)
+        if ticks is not None:
+            ax.set_xticks(range(len(ticks)), ticks, rotation=30 if rotate else 0, ha="right" if rotate else "center",
+                          rotation_mode="anchor", fontsize=8)
+            ax.set_xlim(-0.5, len(ticks) - 0.5)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     if legend:
         handles = [Line2D([], [], color=_colour(i), marker="o", lw=1.3) for i in labels.values()]
-        fig.legend(handles, list(labels), loc="upper center", bbox_to_anchor=(0.5, 1.0),
-                   ncol=min(4, len(labels)), fontsize=9, frameon=False)
-    return _fixed_layout_uri(fig)
+        fig.legend(handles, list(labels), loc="outside upper center", ncol=per_row, fontsize=9, frameon=False)
+    return fig
 
 
 @dataclass(frozen=True, slots=True)

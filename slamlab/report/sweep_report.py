@@ -27,7 +27,7 @@ from slamlab.errors import SlamlabError
 from slamlab.report import figures, sweep_figures
 from slamlab.report.columns import ACCURACY_KEYS, HEADLINE_GROUPS, METRIC_BY_KEY, METRICS, get_metric
 from slamlab.report.error_series import ATE, error_series
-from slamlab.report.html import atomic_write_text, fmt_number, now_text, package_version, render
+from slamlab.report.html import atomic_write_text, count_text, fmt_number, now_text, package_version, render
 from slamlab.io.rundir import RunDirectory, RunFile, SweepFile, read_yaml
 from slamlab.report.rundir import (
     STATUS_FAILED,
@@ -44,6 +44,8 @@ from slamlab.report.sweep_stats import (
     config_label,
     config_stats,
     is_number,
+    memory_note,
+    short_value,
     runtime_check,
     sweep_verdict,
     value_text,
@@ -63,6 +65,7 @@ class Cell:
     cls: str = ""
     sort: str | None = None
     href: str | None = None
+    title: str | None = None  # the whole value when `text` shortens it (a path by its file name)
 
 
 @dataclass(slots=True)
@@ -70,6 +73,7 @@ class Column:
     label: str
     text: bool = False
     title: str = ""
+    detail: bool = False  # behind the table's "all columns" switch
 
 
 @dataclass(slots=True)
@@ -128,6 +132,10 @@ def run_labels(runs: Sequence[RunDir]) -> list[str]:
     return [str(p.relative_to(common)) for p in paths]
 
 
+# Overrides that change how a run shows itself, never its results: not parameters of a comparison.
+NOT_RESULTS = frozenset({"progress", "report", "hydra.run.dir", "hydra.sweep.dir"})
+
+
 def swept_parameters(runs: Sequence[RunDir]) -> tuple[list[str], dict[str, list[Any]], list[str]]:
     """(swept keys, values per key per run, common overrides).
 
@@ -140,9 +148,12 @@ def swept_parameters(runs: Sequence[RunDir]) -> tuple[list[str], dict[str, list[
         for k in d:
             if k not in keys:
                 keys.append(k)
-    swept = [k for k in keys if len({d.get(k) for d in per_run}) > 1]
-    common = [f"{k}={per_run[0][k]}" for k in keys if k not in swept and all(k in d for d in per_run)]
-    values = {k: [_parse_value(d.get(k)) for d in per_run] for k in swept}
+    # a run that did not override a key used its default: the group's choice or the config's
+    # value (a run of the defaults ran 100 particles, not "particles=-")
+    values = {k: [_parse_value(d[k]) if k in d else r.setting(k) for r, d in zip(runs, per_run)] for k in keys}
+    swept = [k for k in keys if len({value_text(v) for v in values[k]}) > 1 and k not in NOT_RESULTS]
+    common = [f"{k}={per_run[0][k]}" for k in keys if k not in swept and k not in NOT_RESULTS and all(k in d for d in per_run)]
+    values = {k: values[k] for k in swept}
     if not swept and len(runs) > 1:
         diff = config_differences(runs)
         for k in list(diff)[:6]:
@@ -199,12 +210,30 @@ def _best_mask(df: pd.DataFrame, key: str) -> pd.Series:
     return np.isclose(col, best, rtol=1e-12, atol=0.0) & ok
 
 
+def is_partial(run: RunDir) -> bool:
+    """An interrupted run that wrote its results so far (metrics.json `partial`)."""
+    return run.status == "interrupted" and bool(run.metrics.get("partial"))
+
+
 def _rel_href(target: Path, out_dir: Path) -> str:
     return Path(os.path.relpath(target, out_dir)).as_posix()
 
 
-def html_table(df: pd.DataFrame, runs: Sequence[RunDir], swept: Sequence[str], out_dir: Path) -> tuple[Table, list[str]]:
-    """The every-run table with links, sort keys and best marks; returns it and the metric keys shown."""
+LADDER_NOTE = ("These runs are the steps of the preparation ladder (+experiment=ladder): each step is checked by its"
+               " own picture in its report (the run names link to them), not ranked against the others, so no"
+               " configuration is called best here.")
+
+
+def is_ladder(swept: Sequence[str], values: dict[str, list[Any]]) -> bool:
+    """A sweep over the ladder's steps (`+experiment=ladder`): stages of one exercise, not rivals."""
+    steps = [v for v in values.get("experiment", []) if v is not None]
+    return "experiment" in swept and bool(steps) and all(str(v).startswith("ladder_") for v in steps)
+
+
+def html_table(df: pd.DataFrame, runs: Sequence[RunDir], swept: Sequence[str], out_dir: Path,
+               mark_best: bool = True) -> tuple[Table, list[str]]:
+    """The every-run table with links, sort keys and best marks (`mark_best`); returns it and
+    the metric keys shown."""
     metric_keys = [m.key for m in METRICS if m.table and df[m.key].notna().any()
                    and not (m.hide_when_zero and (df[m.key].fillna(0) == 0).all())]
     has_err = any(not r.ok for r in runs)
@@ -213,8 +242,8 @@ def html_table(df: pd.DataFrame, runs: Sequence[RunDir], swept: Sequence[str], o
     # The error sits next to the parameters so a failed row is readable without scrolling.
     if has_err:
         cols.append(Column("error", True, "full text under 'Failed or incomplete runs'"))
-    cols += [Column(METRIC_BY_KEY[k].label, False, k) for k in metric_keys]
-    best = {k: _best_mask(df, k) for k in metric_keys}
+    cols += [Column(METRIC_BY_KEY[k].label, False, k, METRIC_BY_KEY[k].detail) for k in metric_keys]
+    best = {k: _best_mask(df, k) if mark_best else pd.Series(False, index=df.index) for k in metric_keys}
     rows: list[Row] = []
     for i, r in enumerate(runs):
         rec = df.iloc[i]
@@ -224,13 +253,16 @@ def html_table(df: pd.DataFrame, runs: Sequence[RunDir], swept: Sequence[str], o
         for k in swept:
             v = rec[k]
             num = isinstance(v, (int, float)) and not isinstance(v, bool)
-            cells.append(Cell(value_text(v), "", repr(float(v)) if num else None))
+            full, short = value_text(v), short_value(v)
+            cells.append(Cell(short, "param", repr(float(v)) if num else None, title=full if short != full else None))
         if has_err:
             err = r.error if not r.ok and r.error else ""
             cells.append(Cell(err if len(err) <= 60 else err[:57] + "...", "err"))
         for k in metric_keys:
             v = float(rec[k])
             cls = "best" if bool(best[k].iloc[i]) else ""
+            if METRIC_BY_KEY[k].detail:
+                cls = (cls + " detail").strip()
             cells.append(Cell(fmt_number(v), cls, "" if math.isnan(v) else repr(v)))
         rows.append(Row(str(rec["run"]), r.status, cells))
     return Table(cols, rows), metric_keys
@@ -307,7 +339,7 @@ def param_plots(df: pd.DataFrame, swept: Sequence[str]) -> list[dict[str, str]]:
     """The headline metrics (headline_keys) versus each swept parameter (seed excluded: it is
     averaged over), one line per value of the other swept parameters (param_series)."""
     ok = df[df["status"] == STATUS_OK]
-    params = [k for k in swept if k != SEED_KEY]
+    params = varying(ok, [k for k in swept if k != SEED_KEY])  # a value shared by every finished run is no axis
     keys = headline_keys(df)
     if ok.empty or not params or not keys:
         return []
@@ -340,7 +372,7 @@ def _sweep_commands(runs: Sequence[RunDir]) -> list[str]:
 
 
 def _short_params(swept: Sequence[str], values: dict[str, list[Any]], i: int) -> str:
-    return " ".join(f"{k.split('.')[-1]}={value_text(values[k][i])}" for k in swept)
+    return " ".join(f"{k.split('.')[-1]}={short_value(values[k][i])}" for k in swept)
 
 
 def _primary_metric(df: pd.DataFrame) -> str | None:
@@ -350,10 +382,66 @@ def _primary_metric(df: pd.DataFrame) -> str | None:
     return None
 
 
-def _verdict_section(df: pd.DataFrame, params: Sequence[str], runs: Sequence[RunDir]) -> dict[str, Any] | None:
-    """The verdict on the headline metric, as the template shows it: summary sentence, the
-    cheapest of the best and its ties, and one row per configuration."""
-    keys = headline_keys(df)
+# How a run is scored, named for the verdict's heading: the first of ACCURACY_KEYS it has.
+SCORED_BY = {
+    "trajectory.rmse_m": "against ground truth (ATE)",
+    "relations.trans_abs_mean_m": "against benchmark relations",
+    "map.agreement": "against the true map",
+    "consistency.contradiction_share": "by their own map's consistency (no ground truth, no relations)",
+}
+
+
+SCORE_KEYS = (*ACCURACY_KEYS, "consistency.contradiction_share")
+
+
+def scored_by(df: pd.DataFrame) -> pd.Series:
+    """Each run's first score key with a value (None: none), in SCORE_KEYS order."""
+    out = pd.Series([None] * len(df), index=df.index, dtype=object)
+    for key in reversed([k for k in SCORE_KEYS if k in df]):
+        out[df[key].notna()] = key
+    return out
+
+
+def _verdict_sections(df: pd.DataFrame, params: Sequence[str], runs: Sequence[RunDir]) -> list[dict[str, Any]]:
+    """One verdict per way the runs are scored (ground truth, relations, ...): runs of
+    another dataset scored another way get their own verdict instead of being left out; a
+    run scored no way is named in the note of the first."""
+    ok = df["status"] == STATUS_OK
+    kinds = scored_by(df)
+    groups = [k for k in SCORE_KEYS if ((kinds == k) & ok).any()]
+    out = []
+    for key in groups:
+        part = df[(kinds == key) & ok]
+        section = _verdict_section(part, params, [runs[i] for i in part.index], key)
+        if section is not None:
+            if len(groups) > 1:
+                section["scope"] = f"Runs scored {SCORED_BY.get(key, key)}: {len(part)} of {int(ok.sum())}"
+            out.append(section)
+    if not out:
+        return out
+    notes = []
+    n_bad = int((~ok).sum())
+    if n_bad:
+        notes.append(f"{n_bad} failed or incomplete run{'s' if n_bad != 1 else ''} not counted.")
+    unscored = [str(df.loc[i, "run"]) for i in df.index[ok & kinds.isna()]]
+    if unscored:
+        notes.append(f"Not ranked (no ground truth, relations or consistency score): run{'s' if len(unscored) > 1 else ''}"
+                     f" {', '.join(unscored)}.")
+    out[0]["excluded"] = " ".join(notes)
+    return out
+
+
+def varying(df: pd.DataFrame, params: Sequence[str]) -> list[str]:
+    """The parameters whose values differ between the rows of `df` (as the tables show them)."""
+    return [k for k in params if k in df and df[k].map(value_text).nunique() > 1]
+
+
+def _verdict_section(df: pd.DataFrame, params: Sequence[str], runs: Sequence[RunDir], key: str | None = None) -> dict[str, Any] | None:
+    """The verdict on the headline metric (`key`, default the first headline key), as the
+    template shows it: summary sentence, the cheapest of the best and its ties, and one row
+    per configuration (named by the parameters that differ among these runs)."""
+    params = varying(df[df["status"] == STATUS_OK], params)
+    keys = [key] if key is not None else headline_keys(df)
     if not keys or keys[0] not in METRIC_BY_KEY:
         return None
     verdict = sweep_verdict(df, params, keys[0])
@@ -382,7 +470,7 @@ def _verdict_section(df: pd.DataFrame, params: Sequence[str], runs: Sequence[Run
                     f" ({METRIC_BY_KEY[cost_key].label}: {fmt_number(cost[pick].mean, 3)}, mean over seeds).")
     n_bad = sum(not r.ok for r in runs)
     return {
-        "summary": verdict.summary, "cheapest": cheapest, "rows": rows, "label": verdict.label,
+        "scope": "", "summary": verdict.summary, "cheapest": cheapest, "rows": rows, "label": verdict.label,
         "better": unit_better, "cost_label": METRIC_BY_KEY[cost_key].label if cost_key else "cost",
         "spread_known": verdict.spread_known,
         "excluded": f"{n_bad} failed or incomplete run{'s' if n_bad != 1 else ''} not counted." if n_bad else "",
@@ -444,6 +532,8 @@ def _overlay(runs: Sequence[RunDir], ok_idx: Sequence[int], df: pd.DataFrame, di
     if primary is not None:
         col = df[primary].where(df["status"] == STATUS_OK)
         bg = int(col.idxmin() if METRIC_BY_KEY[primary].better != "max" else col.idxmax())
+    else:
+        primary = None  # only interrupted runs: the first one's map
     paths = [(display[i], t) for i in ok_idx
              if (t := _safe("trajectory", lambda i=i: runs[i].load_trajectory("slam"))) is not None]
     if not paths:
@@ -465,16 +555,25 @@ def _overlay(runs: Sequence[RunDir], ok_idx: Sequence[int], df: pd.DataFrame, di
     return img, note
 
 
+# Runs whose lengths differ more than this are drawn against the share of the run: an 85 s
+# run beside a 2,650 s one would be a sliver at the left of a shared time axis.
+DURATION_RATIO = 3.0
+
+
 def _neff(runs: Sequence[RunDir], ok_idx: Sequence[int], display: Sequence[str], labels: Sequence[str]) -> tuple[str | None, str]:
-    """N_eff curves; normalised by N when particle counts differ, else raw."""
+    """N_eff curves; normalised by N when particle counts differ, else raw; against the share
+    of each run when their lengths differ by more than DURATION_RATIO, else time."""
     curves = []
     smooth_windows: list[int] = []
     normalise = len({runs[i].particles for i in ok_idx}) > 1
-    for i in ok_idx:
-        steps = _safe(f"steps of {labels[i]}", runs[i].load_steps)
-        if steps is None or "neff" not in steps or not len(steps):
-            continue
+    tables = {i: s for i in ok_idx if (s := _safe(f"steps of {labels[i]}", runs[i].load_steps)) is not None
+              and "neff" in s and len(s)}
+    spans = [float(figures.step_times(s)[-1]) for s in tables.values()]
+    by_share = len(spans) > 1 and min(spans) > 0 and max(spans) / min(spans) > DURATION_RATIO
+    for i, steps in tables.items():
         t = figures.step_times(steps)
+        if by_share:
+            t = 100.0 * t / max(float(t[-1]), 1e-9)
         y = np.asarray(steps["neff"], float)
         if normalise and runs[i].particles:
             y = y / runs[i].particles
@@ -485,9 +584,13 @@ def _neff(runs: Sequence[RunDir], ok_idx: Sequence[int], display: Sequence[str],
             y = pd.Series(y).rolling(win, center=True, min_periods=1).mean().to_numpy()
         smooth_windows.append(win)
         curves.append((display[i], t, y))
-    img = _safe("N_eff overlay", lambda: figures.neff_overlay(curves, "N_eff / N" if normalise else "N_eff")) if curves else None
+    xlabel = "share of the run (%)" if by_share else "time since first step (s)"
+    img = _safe("N_eff overlay", lambda: figures.neff_overlay(curves, "N_eff / N" if normalise else "N_eff", xlabel)) if curves else None
     note = ("N_eff divided by each run's particle count N, since N differs between runs."
             if normalise else "N_eff per filter step of every run.")
+    if by_share:
+        note += (f" Drawn against the share of each run (0-100 %): the runs last {min(spans):.0f} to {max(spans):.0f} s,"
+                 " and on one time axis the short ones would be slivers.")
     if smooth_windows and max(smooth_windows) > 1:
         lo, hi = min(smooth_windows), max(smooth_windows)
         note += (f" Smoothed by a centred rolling mean over {lo if lo == hi else f'{lo}–{hi}'} steps"
@@ -514,19 +617,25 @@ def build_sweep_report(
     swept, values, common = swept_parameters(runs)
     df = runs_dataframe(runs, labels, swept, values)
     out_dir.mkdir(parents=True, exist_ok=True)
-    table, metric_keys = html_table(df, runs, swept, out_dir.resolve())
+    table, metric_keys = html_table(df, runs, swept, out_dir.resolve(), mark_best=not is_ladder(swept, values))
 
     display = [f"{labels[i]}: {_short_params(swept, values, i)}" if swept else labels[i] for i in range(len(runs))]
     ok_idx = [i for i, r in enumerate(runs) if r.ok]
+    # what the figures draw: the finished runs and the interrupted ones' partial results (marked);
+    # the verdict and the best marks count finished runs only
+    shown_idx = [i for i, r in enumerate(runs) if r.ok or is_partial(r)]
+    display = [f"{d} (interrupted)" if is_partial(runs[i]) else d for i, d in enumerate(display)]
     params = [k for k in swept if k != SEED_KEY]  # a configuration = every swept value but the seed
     groups = [config_label(params, [values[k][i] for k in params]) for i in range(len(runs))]
 
-    verdict = _safe("verdict", lambda: _verdict_section(df, params, runs))
+    ladder = is_ladder(swept, values)
+    verdicts = [] if ladder else (_safe("verdict", lambda: _verdict_sections(df, params, runs)) or [])
     runtime = _safe("runtime check", lambda: runtime_check(df, runs))
-    errors_img, errors_note = _error_over_time(runs, ok_idx, groups, labels)
-    maps = _run_maps(runs, ok_idx, display, labels)
-    overlay_img, overlay_note = _overlay(runs, ok_idx, df, display, labels)
-    neff_img, neff_note = _neff(runs, ok_idx, display, labels)
+    memory = _safe("memory note", lambda: memory_note(runs, labels)) or ""
+    errors_img, errors_note = _error_over_time(runs, shown_idx, groups, labels)
+    maps = _run_maps(runs, shown_idx, display, labels)
+    overlay_img, overlay_note = _overlay(runs, shown_idx, df, display, labels)
+    neff_img, neff_note = _neff(runs, shown_idx, display, labels)
     plots = _safe("parameter plots", lambda: param_plots(df, swept)) or []
     aggregate = _safe("seed aggregate", lambda: seed_aggregate(df, swept, metric_keys))
 
@@ -542,7 +651,7 @@ def build_sweep_report(
 
     if title is None:
         roots = {r.path.parent for r in runs}
-        title = f"Sweep {next(iter(roots))}" if len(roots) == 1 and len(runs) > 1 else f"Comparison of {len(runs)} runs"
+        title = f"Sweep {next(iter(roots))}" if len(roots) == 1 and len(runs) > 1 else f"Comparison of {count_text(len(runs), 'run')}"
     html = render(
         "sweep.html",
         title=title,
@@ -554,8 +663,10 @@ def build_sweep_report(
         sources=[str(d) for d in dirs],
         sweep_cmds=_sweep_commands(runs),
         common=" ".join(common),
-        verdict=verdict,
+        verdicts=verdicts,
+        ladder_note=LADDER_NOTE if ladder else "",
         runtime=runtime,
+        memory_note=memory,
         table=table,
         failed=failed,
         param_plots=plots,
@@ -565,7 +676,8 @@ def build_sweep_report(
         errors_img=errors_img,
         errors_note=errors_note,
         maps=maps,
-        has_groundtruth=any(runs[i].file(RunFile.GROUNDTRUTH) is not None for i in ok_idx),
+        has_groundtruth=any(runs[i].file(RunFile.GROUNDTRUTH) is not None for i in shown_idx),
+        n_partial=len(shown_idx) - len(ok_idx),
         overlay_img=overlay_img,
         overlay_note=overlay_note,
         neff_img=neff_img,

@@ -53,9 +53,18 @@ def config_groups(df: pd.DataFrame, params: Sequence[str]) -> list[tuple[tuple, 
     return out
 
 
+def short_value(v: Any) -> str:
+    """A parameter value as a label shows it: a path by its file name (the table's cell keeps
+    the whole path in its tooltip), anything else as `value_text`."""
+    text = value_text(v)
+    if isinstance(v, str) and "/" in text:
+        return text.rstrip("/").rsplit("/", 1)[-1] or text
+    return text
+
+
 def config_label(params: Sequence[str], values: Sequence[Any]) -> str:
-    """`particles=50 resampler=residual` (last part of dotted keys)."""
-    return " ".join(f"{k.split('.')[-1]}={value_text(v)}" for k, v in zip(params, values)) or "all runs"
+    """`particles=50 resampler=residual` (last part of dotted keys; paths by their file name)."""
+    return " ".join(f"{k.split('.')[-1]}={short_value(v)}" for k, v in zip(params, values)) or "all runs"
 
 
 @dataclass(frozen=True, slots=True)
@@ -102,15 +111,24 @@ class Verdict:
     summary: str
 
 
+# With one seed per configuration the spread is unknown; a difference below this share of
+# the best value is still called a tie (seeds of one configuration differ by far more: 8e-6 m
+# between 100 and 150 particles is no ranking).
+TIE_SHARE = 0.01
+
+
 def _judge(best: ConfigStat, other: ConfigStat) -> tuple[float, str]:
     """(spread, verdict) of `other` against `best`: a difference within the seed-to-seed
-    standard deviation (the larger of the two configurations') is a tie."""
+    standard deviation (the larger of the two configurations') is a tie; with no spread known,
+    a difference under TIE_SHARE of the best value is one too."""
     spreads = [s for s in (best.std, other.std) if not math.isnan(s)]
     spread = max(spreads) if spreads else math.nan
     diff = abs(other.mean - best.mean)
     if diff == 0.0:
         return spread, "tie"
     if math.isnan(spread):
+        if diff <= TIE_SHARE * abs(best.mean):
+            return spread, "tie"
         return spread, "worse?"  # one seed each: ranked, but nobody knows if it is noise
     return spread, "tie" if diff <= spread else "worse"
 
@@ -147,8 +165,9 @@ def _summary(label: str, standings: list[Standing], spread_known: bool) -> str:
     text = f"Best {label}: {best.label} ({_fmt_stat(best)}"
     text += f", {best.n} seeds)." if best.n > 1 else ")."
     if not spread_known:
-        return text + (" Every configuration ran with a single seed, so the seed-to-seed spread is unknown"
-                       " and the ranking may be noise: repeat with several seeds (e.g. seed=0,1,2) to tell.")
+        same = (f" Within {TIE_SHARE:.0%} of it, a tie whatever the spread: {', '.join(ties)}." if ties else "")
+        return text + same + (" Every configuration ran with a single seed, so the seed-to-seed spread is unknown"
+                              " and the ranking may be noise: repeat with several seeds (e.g. seed=0,1,2) to tell.")
     if ties:
         text += (f" Tied with it (difference within the seed-to-seed spread): {', '.join(ties)}."
                  " These cannot be told apart with these seeds.")
@@ -217,3 +236,31 @@ def runtime_check(df: pd.DataFrame, runs: Sequence[RunDir]) -> RuntimeCheck | No
     return RuntimeCheck(True, "Every run's wall time is within"
                         f" {fmt_number(LOAD_RATIO, 3)}× its CPU time and no runs overlapped: wall times compare.",
                         parallel, ratios)
+
+
+def memory_note(runs: Sequence[RunDir], labels: Sequence[str]) -> str:
+    """What the table's peak memory column measures, from each run's `peak_memory_scope`:
+    every run's own peak, or which runs' peaks sit on what earlier runs in their process
+    left allocated (a launcher's reused workers), or the process's lifetime peak."""
+    scopes = {label: r.metrics.get("peak_memory_scope") for r, label in zip(runs, labels) if r.ok and "peak_memory_mb" in r.metrics}
+    if not scopes:
+        return ""
+    own = [k for k, v in scopes.items() if v == "run"]
+    if len(own) == len(scopes):
+        return ("Peak memory: each run's own peak resident memory (a sweep runs every job in a fresh child process, so a"
+                " job's place in the sweep does not change it).")
+    reused = [k for k, v in scopes.items() if v not in ("run", "process", None)]
+    lifetime = [k for k, v in scopes.items() if v == "process"]
+    unknown = [k for k, v in scopes.items() if v is None]
+    parts = ["Peak memory:"]
+    if own:
+        parts.append(f"{len(own)} of {len(scopes)} runs show their own peak.")
+    if reused:
+        parts.append(f"Run{'s' if len(reused) > 1 else ''} {', '.join(reused)} ran in a process that had run others"
+                     " before (a launcher's reused worker): their peak includes what those left allocated.")
+    if lifetime:
+        parts.append(f"Run{'s' if len(lifetime) > 1 else ''} {', '.join(lifetime)}: the process's lifetime peak (no per-run"
+                     " measure on this system).")
+    if unknown:
+        parts.append(f"Run{'s' if len(unknown) > 1 else ''} {', '.join(unknown)} do not say (older slamlab).")
+    return " ".join(parts)

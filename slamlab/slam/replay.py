@@ -21,6 +21,7 @@ import numpy as np
 
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
+from slamlab.numeric import block_max, evenly_spaced  # noqa: F401  (block_max: shared with the reports)
 
 if TYPE_CHECKING:
     from slamlab.slam.tiles import TiledMaps
@@ -32,25 +33,7 @@ MAX_SCAN_POINTS = 240
 
 def snapshot_steps(n_steps: int, count: int = SNAPSHOTS) -> np.ndarray:
     """Indices of `count` steps (or all of them) spread evenly over the run, last step included."""
-    if n_steps <= 0:
-        return np.zeros(0, dtype=np.int64)
-    return np.unique(np.linspace(0, n_steps - 1, min(count, n_steps)).round().astype(np.int64))
-
-
-def block_max(data: np.ndarray, k: int) -> np.ndarray:
-    """Reduce a log-odds grid by k x k blocks keeping each block's largest value (the most
-    occupied cell, so thin walls survive); edges padded with 0 (unknown)."""
-    if k <= 1:
-        return data
-    ph, pw = (-data.shape[0]) % k, (-data.shape[1]) % k
-    padded = np.pad(data, ((0, ph), (0, pw)), constant_values=0.0)
-    # k*k strided maxima: ~20x faster than a max over a reshaped (h, k, w, k) view, which
-    # matters as the engine reduces a map at every snapshot
-    out = padded[0::k, 0::k].copy()
-    for i in range(k):
-        for j in range(k):
-            np.maximum(out, padded[i::k, j::k], out=out)
-    return out
+    return evenly_spaced(n_steps, count)
 
 
 def reduce_map(grid: GridImage, max_px: int = MAX_MAP_PX, unit: float = 1.0) -> tuple[np.ndarray, tuple[float, float, float, float]]:

@@ -36,9 +36,8 @@ import numpy as np
 from slamlab.config.slam import LinearExpWeightingConfig as _LinExp
 from slamlab.config.slam import LogSumExpWeightingConfig as _LogSumExp
 from slamlab.geometry import FloatArray
+from slamlab.numeric import OVERFLOW_SCORE  # noqa: F401  (exp(x) is inf in float64 above it; the report explains it too)
 log = logging.getLogger(__name__)
-# exp(x) is inf in float64 above this (log of the largest float64, 1.8e308).
-OVERFLOW_SCORE = float(np.log(np.finfo(np.float64).max))
 
 
 class WeightUnderflowWarning(RuntimeWarning):

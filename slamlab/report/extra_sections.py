@@ -1,0 +1,53 @@
+"""Per-run sections that only some runs have, drawn after the map consistency section.
+
+A section is a function of the loaded run (`RunDir`) that returns an `ExtraSection`, or None
+when the run has nothing for it (the files it reads are absent). Add yours to `SECTIONS`;
+run.html draws each with a link in the page's navigation. It reads the run's files through
+`RunDir` (`run.files.read_arrays`, `run.load_map()`, ...) and never imports the engine: a
+report never recomputes SLAM (pyproject.toml's import contracts).
+
+E.g. a pose-graph run's loop closures drawn on its map: a function that reads the files the
+graph run writes and returns the figure and a table of the closures.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from slamlab.report.rundir import RunDir
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class ExtraSection:
+    """One section: `id` (the HTML anchor), `title`, figures as (data URI, alt text), a note
+    under them and an optional table (`columns`, `rows` of text cells)."""
+
+    id: str
+    title: str
+    images: list[tuple[str, str]] = field(default_factory=list)
+    note: str = ""
+    columns: list[str] = field(default_factory=list)
+    rows: list[list[str]] = field(default_factory=list)
+
+
+# In page order. Each entry: RunDir -> ExtraSection | None.
+SECTIONS: list[Callable[[RunDir], ExtraSection | None]] = []
+
+
+def extra_sections(run: RunDir) -> list[ExtraSection]:
+    """Every section of SECTIONS this run has; one that fails is logged and left out (a
+    broken optional file costs its section, never the page)."""
+    out = []
+    for make in SECTIONS:
+        try:
+            section = make(run)
+        except Exception as exc:  # noqa: BLE001 - the page goes on without it
+            log.warning("run report: section %s failed: %s", getattr(make, "__name__", make), exc)
+            continue
+        if section is not None:
+            out.append(section)
+    return out
