@@ -316,8 +316,9 @@ class GraphFilterConfig:
     GROUP: ClassVar[str] = "filter"
     _target_: str = "slamlab.slam.graph.GraphFilter"
     # ---- local SLAM
-    local_map: str = "map"  # what each scan is matched against: `map` (everything mapped so far, at the online poses;
-    # redrawn after a large correction) or `submap` (the older active submap, as Cartographer)
+    local_map: str = "map"  # local SLAM: `map` (each scan matched against everything mapped so far, at the online poses;
+    # redrawn after a large correction), `submap` (against the older active submap, as Cartographer) or `particles` (the
+    # RBPF, `particles` of them, with the run's motion, weighting and resampler; restarted after a large correction)
     redraw_m: float = 0.3  # local_map=map: when the graph puts the robot this far (m) or redraw_rad from where the
     redraw_rad: float = 0.035  # local map has it, the map is drawn again from the graph (the online pose jumps to the graph's)
     submap_nodes: int = 20  # nodes (processed scans) inserted into each submap; a new one starts every half of it
@@ -364,8 +365,8 @@ class GraphFilterConfig:
     loss_scale: float = 1.0  # the loss's scale in sigmas
     prune_m: float = 0.5  # after an optimisation a closure left this far (m) or prune_rad off is dropped
     prune_rad: float = 0.15
-    online: str = "best"  # the particle filters' choice of online pose: no effect here (the online pose is the
-    # graph's estimate at each scan's time); accepted so that `filter=` can switch a preset that sets it
+    online: str = "best"  # local_map=particles: the online pose is the best particle (best) or the weighted mean (mean);
+    # otherwise no effect (accepted so that `filter=` can switch a preset that sets it)
 
     def __post_init__(self) -> None:
         g = self.GROUP
@@ -382,7 +383,7 @@ class GraphFilterConfig:
         for name in ("min_score", "min_refined_score", "ambiguity_ratio"):
             require_fraction(g, name, getattr(self, name))
         require_choice(g, "loss", self.loss, ("cauchy", "huber", "none"))
-        require_choice(g, "local_map", self.local_map, ("map", "submap"))
+        require_choice(g, "local_map", self.local_map, ("map", "submap", "particles"))
         _check_online(self.online)
 
 

@@ -53,6 +53,14 @@ class LocalSlam:
         """Whether the online pose is matched against a map of everything (local_map=map)."""
         return self.grid is not None
 
+    @property
+    def reference(self) -> FloatArray:
+        """The pose scans between steps are matched from (`match_online`)."""
+        return self.online
+
+    def finish_step(self) -> None:
+        """After the scans between steps: nothing here (the particle tracker resamples)."""
+
     def _new_grid(self, start_xy: tuple[float, float]) -> OccupancyGrid:
         return OccupancyGrid(self.settings, start_xy, self.matcher.field_sigma_m, self.matcher.field_radius_m)
 
@@ -91,10 +99,10 @@ class LocalSlam:
         cap = (slip_per_m * step_m) ** 2
         if cap <= 0 or not len(scan.xy):
             return np.zeros((3, 3))
-        grid = self.grid if self.grid is not None else (self.submaps.matching().grid if self.submaps.active else None)
+        grid, pose = (self.grid, self.online) if self.grid is not None else (self.submaps.matching().grid if self.submaps.active else None, self.chain)
         if grid is None:
             return np.zeros((3, 3))
-        cov = match_covariance(grid.field, grid.origin, grid.res, self.online, self.matcher.fine_points(scan), 0.0, 0.0)
+        cov = match_covariance(grid.field, grid.origin, grid.res, pose, self.matcher.fine_points(scan), 0.0, 0.0)
         w, v = np.linalg.eigh(cov[:2, :2])
         w = np.minimum(w, cap)
         out = np.zeros((3, 3))

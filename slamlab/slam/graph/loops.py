@@ -149,10 +149,10 @@ class LoopSearch:
         return [(submaps.finished[idx[j]], guess[j], (float(windows[j, 0]), float(windows[j, 1])), float(tied_m[j])) for j in near]
 
     def search(self, node: int, pose: FloatArray, fine_pts: FloatArray, own: FloatArray, origin: FloatArray, submaps: Submaps, reach: list[tuple[FinishedSubmap, FloatArray, tuple[float, float], float]],
-               anchors_global: dict[int, FloatArray]) -> list[LoopCandidate]:
+               poses: FloatArray) -> list[LoopCandidate]:
         """Candidates of node `node` (estimate `pose`, query points `fine_pts` (M, 2) in its
         frame, m; its own scan's points `own`, seen from the lidar at `origin` there) in the
-        submaps `reach` (`submaps_in_reach`, of `submaps`). Only matches above
+        submaps `reach` (`submaps_in_reach`, of `submaps`); `poses` (N, 3): every node's estimate. Only matches above
         `min_score` become candidates (with their status)."""
         t0 = time.perf_counter()
         s = self.s
@@ -200,22 +200,27 @@ class LoopSearch:
                                                   float(refined_pose[0]), float(refined_pose[1]), float(refined_pose[2]),
                                                   np.ascontiguousarray(own, dtype=np.float64), float(origin[0]), float(origin[1]),
                                                   int(round(WALL_MARGIN_M / sm.resolution_m)))
-            anchor_pose = anchors_global[sm.anchor]
+
             cov = match_covariance(field, sm.origin, sm.resolution_m, refined_pose, fine_pts, self.sigma_m, self.sigma_rad)
             if along is not None:
                 # along the line of equally good poses (a corridor's length) the match says
                 # nothing: keep the estimate's place on it, and no weight there
                 refined_pose = refined_pose.copy()
                 refined_pose[:2] += float((guess[:2] - refined_pose[:2]) @ along) * along
-            relative = se2_between(sm.anchor_local, refined_pose)
+            # the closure joins the query node to the submap's node nearest the match: the
+            # submap's content there was drawn from that node's and its neighbours' scans, so
+            # local SLAM's drift between the submap's first node and that one stays out of it
+            near = int(np.argmin(np.hypot(*(sm.node_local[:, :2] - refined_pose[:2]).T)))
+            anchor, anchor_local = int(sm.node_ids[near]), sm.node_local[near]
+            relative = se2_between(anchor_local, refined_pose)
             if along is not None:
                 c, sn = np.cos(refined_pose[2]), np.sin(refined_pose[2])
                 u = np.array([c * along[0] + sn * along[1], -sn * along[0] + c * along[1]])  # in the node's frame
                 cov[:2, :2] += MAX_SIGMA_M**2 * np.outer(u, u)
             out.append(LoopCandidate(
-                node=node, submap=sm.index, anchor=sm.anchor, relative=relative, score=best.score, refined=refined,
+                node=node, submap=sm.index, anchor=anchor, relative=relative, score=best.score, refined=refined,
                 second=second, window_m=half_xy, node_pose=np.asarray(pose, dtype=np.float64).copy(),
-                match_pose=se2_compose(anchor_pose, relative), status=status,
+                match_pose=se2_compose(poses[anchor], relative), status=status,
                 covariance=cov, along_line=along is not None, see_through=through / max(len(own), 1), free_ends=free_end / max(len(own), 1), tied_m=tied,
             ))
         self.seconds += time.perf_counter() - t0

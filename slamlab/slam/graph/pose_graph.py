@@ -198,6 +198,22 @@ class PoseGraph:
         self._x[: self.n] = poses
         self._restart()
 
+    def loops_off(self, loops: np.ndarray, m: float, rad: float) -> np.ndarray:
+        """(L,) bool: which of `loops` (ids) the current estimate leaves more than `m` metres or
+        `rad` radians off where they pin the pose: r^T (C + diag(m^2, m^2, rad^2))^-1 r > 1,
+        r the residual, C the closure's covariance (a corridor match's residual along the
+        corridor, where its covariance is metres wide, does not count)."""
+        if len(loops) == 0:
+            return np.zeros(0, dtype=bool)
+        a = np.array([self.loops[j][0] for j in loops])
+        i = np.array([self.loops[j][1] for j in loops])
+        z = np.array([self.loops[j][2] for j in loops])
+        d = se2_between(z, se2_between(self._x[a], self._x[i]))
+        d[:, 2] = wrap_angle(d[:, 2])
+        cov = np.array([self.loop_cov[j] for j in loops]) + np.diag([m**2, m**2, rad**2])
+        q = np.einsum("li,li->l", d, np.linalg.solve(cov, d[..., None])[..., 0])
+        return q > 1.0
+
     def loop_residuals(self, loops: np.ndarray) -> tuple[FloatArray, FloatArray]:
         """How far the current estimate is from each of `loops` (ids): (m, rad) arrays."""
         if len(loops) == 0:

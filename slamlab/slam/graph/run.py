@@ -40,6 +40,7 @@ from slamlab.geometry import FloatArray, se2_between, se2_compose
 from slamlab.io.table import Table
 from slamlab.slam.graph import GraphFilter
 from slamlab.slam.graph.local import LocalSlam
+from slamlab.slam.graph.particles import ParticleTracker
 from slamlab.slam.graph.loops import ACCEPTED, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings, WindowPolicy
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.submaps import Submaps
@@ -81,7 +82,10 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
 
     start = odom[step_scans[0]].copy()
     submaps = Submaps(ms, s.submap_nodes, matcher.field_sigma_m, matcher.field_radius_m)
-    tracker = LocalSlam(matcher, ms, submaps, s.local_map, start, c.motion.scale_gain_per_m)
+    if s.local_map == "particles":
+        tracker: LocalSlam = ParticleTracker(matcher, ms, submaps, start, c.particles, c.motion, c.weighting, c.resampler, c.seed, s.online)
+    else:
+        tracker = LocalSlam(matcher, ms, submaps, s.local_map, start, c.motion.scale_gain_per_m)
     graph = PoseGraph(start, GraphNoise(s.local_sigma_m, s.local_sigma_per_m, s.local_sigma_rad, s.local_sigma_per_rad,
                                         s.loop_sigma_m, s.loop_sigma_rad, s.loss, s.loss_scale, s.local_sigma_along_per_m))
     search = LoopSearch(SearchSettings(s.search_resolution_m, s.search_levels, s.min_score, s.min_refined_score,
@@ -117,14 +121,15 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
             graph.add_node(motion, tracker.slack(pts, step_m, s.local_slip_per_m))
         for done in tracker.insert(k, pts):
             tied.add_submap(done.anchor, path_m)
-        online = tracker.online
         if between is not None:
             js, batch = between_scans.of_step(k)
             if len(js):
+                ref = tracker.reference
                 since = se2_between(odom[si], odom[js])
                 since[:, :2] *= tracker.scale[0]  # the learnt odometry scale (1 when none is learnt)
-                matched = tracker.match_online(se2_compose(online, since), batch)
-                between[js] = se2_between(online, matched)
+                matched = tracker.match_online(se2_compose(ref, since), batch)
+                between[js] = se2_between(ref, matched)
+        tracker.finish_step()
         new: list[LoopCandidate] = []
         fine = matcher.fine_points(pts)
         tracker.remember(k, float(path_m[k]), fine, s.query_m)
@@ -280,7 +285,7 @@ def _search_loops(k: int, query: FloatArray, own: FloatArray, origin: FloatArray
     else:
         keep = np.arange(len(anchors))
     reach = search.submaps_in_reach(poses[k], submaps, poses[anchors[keep]], windows, drift_m[keep], keep)
-    return search.search(k, poses[k], query, own, origin, submaps, reach, {int(a): poses[a] for a in anchors})
+    return search.search(k, poses[k], query, own, origin, submaps, reach, poses)
 
 
 def closures_table(candidates: list[LoopCandidate], graph: PoseGraph, node_times: FloatArray, final: FloatArray) -> Table:
@@ -332,8 +337,7 @@ def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[
     kept = graph.poses.copy()
     far = any(not correction_fits(c, kept, s.far_m, s.far_m * FAR_RAD_PER_M) for c in group)
     graph.optimise_batch(from_lago=far)
-    dm, dr = graph.loop_residuals(before)
-    broken = int(((dm > s.prune_m) | (dr > s.prune_rad)).sum())
+    broken = int(graph.loops_off(before, s.prune_m, s.prune_rad).sum())
     if broken > max(REFUTE_MIN, REFUTE_SHARE * len(before)):
         for c in group:
             graph.drop_loop(c.loop_id)
@@ -353,8 +357,7 @@ def _prune(graph: PoseGraph, by_loop: dict[int, LoopCandidate], prune_m: float, 
     """Drop the closures the estimate leaves more than prune_m / prune_rad off (their
     candidates' status becomes `pruned`); whether any was dropped."""
     active = np.flatnonzero(graph.active)
-    dm, dr = graph.loop_residuals(active)
-    off = active[(dm > prune_m) | (dr > prune_rad)]
+    off = active[graph.loops_off(active, prune_m, prune_rad)]
     if len(off):
         for loop in off:
             graph.drop_loop(int(loop))

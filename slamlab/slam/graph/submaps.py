@@ -22,7 +22,7 @@ from __future__ import annotations
 import zlib
 from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -49,6 +49,8 @@ class FinishedSubmap:
     anchor: int
     anchor_local: FloatArray
     nodes: tuple[int, int]
+    node_ids: np.ndarray  # (K,) the nodes whose scans it holds ...
+    node_local: FloatArray  # (K, 3) ... and their local poses (its frame)
     shape: tuple[int, int]
     packed: bytes
     origin: FloatArray
@@ -114,6 +116,8 @@ class ActiveSubmap:
     anchor_local: FloatArray
     grid: OccupancyGrid
     count: int = 0
+    node_ids: list = field(default_factory=list)
+    node_local: list = field(default_factory=list)
 
 
 class Submaps:
@@ -171,6 +175,8 @@ class Submaps:
                 s.grid.insert(sensor, world)
         for s in self.active:
             s.count += 1
+            s.node_ids.append(node)
+            s.node_local.append(np.asarray(local_pose, dtype=np.float64).copy())
         done = []
         while self.active and self.active[0].count >= self.n:
             done.append(self._finish(self.active.pop(0), node))
@@ -202,7 +208,8 @@ class Submaps:
         origin = g.origin + np.array([c0, r0]) * g.res
         size = np.array([c1 - c0, r1 - r0]) * g.res
         f = FinishedSubmap(
-            index=s.index, anchor=s.anchor, anchor_local=s.anchor_local, nodes=(s.anchor, last_node), shape=codes.shape,
+            index=s.index, anchor=s.anchor, anchor_local=s.anchor_local, nodes=(s.anchor, last_node),
+            node_ids=np.array(s.node_ids, dtype=np.int64), node_local=np.array(s.node_local), shape=codes.shape,
             packed=FinishedSubmap.pack(codes, state), origin=origin, resolution_m=g.res,
             center=origin + size / 2, radius=float(np.hypot(*size) / 2),
         )
