@@ -362,7 +362,7 @@ class GraphFilterConfig:
     loop_sigma_m: float = 0.03  # a loop closure's sigma in x, y (m) and yaw (rad)
     loop_sigma_rad: float = 0.01
     loss: str = "cauchy"  # robust loss on loop closures: cauchy | huber | none
-    loss_scale: float = 1.0  # the loss's scale in sigmas
+    loss_scale: float = 0.5  # the loss's scale in sigmas
     prune_m: float = 0.5  # after an optimisation a closure left this far (m) or prune_rad off is dropped
     prune_rad: float = 0.15
     online: str = "best"  # local_map=particles: the online pose is the best particle (best) or the weighted mean (mean);

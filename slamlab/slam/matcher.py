@@ -618,9 +618,15 @@ _NO_STRETCHES = np.zeros((0, 6))
 
 
 def _voxel_index(xy: FloatArray, cell_m: float) -> np.ndarray:
-    """Indices (ascending) of the first point of each `cell_m` square (`voxel_filter`)."""
+    """Indices (ascending) of the first point of each `cell_m` square (`voxel_filter`). The
+    square's (column, row) is folded into one integer first: `np.unique` of 1-D keys is several
+    times faster than of rows, and keeps the same first points."""
     keys = np.floor(np.asarray(xy) / cell_m).astype(np.int64)
-    _, first = np.unique(keys, axis=0, return_index=True)
+    if len(keys) == 0:
+        return np.zeros(0, dtype=np.int64)
+    lo = keys.min(axis=0)
+    span = int(keys[:, 1].max() - lo[1]) + 1
+    _, first = np.unique((keys[:, 0] - lo[0]) * span + (keys[:, 1] - lo[1]), return_index=True)
     return np.sort(first)
 
 
