@@ -6,36 +6,23 @@ run.html draws each with a link in the page's navigation. It reads the run's fil
 `RunDir` (`run.files.read_arrays`, `run.load_map()`, ...) and never imports the engine: a
 report never recomputes SLAM (pyproject.toml's import contracts).
 
-E.g. a pose-graph run's loop closures drawn on its map: a function that reads the files the
-graph run writes and returns the figure and a table of the closures.
+The one built in: a graph run's loop closures (`loops_section`, from loops.csv).
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
+from slamlab.report.loops_section import loops_section
 from slamlab.report.rundir import RunDir
+from slamlab.report.section import ExtraSection
 
 log = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True, slots=True)
-class ExtraSection:
-    """One section: `id` (the HTML anchor), `title`, figures as (data URI, alt text), a note
-    under them and an optional table (`columns`, `rows` of text cells)."""
-
-    id: str
-    title: str
-    images: list[tuple[str, str]] = field(default_factory=list)
-    note: str = ""
-    columns: list[str] = field(default_factory=list)
-    rows: list[list[str]] = field(default_factory=list)
-
-
 # In page order. Each entry: RunDir -> ExtraSection | None.
-SECTIONS: list[Callable[[RunDir], ExtraSection | None]] = []
+SECTIONS: list[Callable[[RunDir], ExtraSection | None]] = [loops_section]
 
 
 def extra_sections(run: RunDir) -> list[ExtraSection]:

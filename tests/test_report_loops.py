@@ -1,0 +1,53 @@
+"""A graph run's report draws its loop closures from loops.csv: accepted ones as segments
+between the places they tie, rejected candidates as crosses, the counts from metrics.json."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from slamlab.artifacts import write_table
+from slamlab.io.rundir import RunFile
+from slamlab.io.table import Table
+from slamlab.report.loops_section import loops_figure, loops_section
+from slamlab.report.rundir import load_run
+
+
+def _loops() -> Table:
+    return Table({
+        "t": np.array([100.0, 110.0, 120.0]), "node": np.array([10, 11, 12]), "submap": np.array([0, 0, 1]),
+        "anchor": np.array([0, 1, 2]), "t_anchor": np.array([10.0, 11.0, 12.0]),
+        "status": np.array(["accepted", "ambiguous", "accepted"]), "score": np.array([0.9, 0.8, 0.7]),
+        "refined": np.array([0.85, 0.8, 0.66]), "second": np.zeros(3), "window_m": np.ones(3), "tied_m": np.full(3, 40.0),
+        "node_x": np.array([1.0, 2.0, 3.0]), "node_y": np.zeros(3), "match_x": np.array([1.5, 7.0, 3.2]), "match_y": np.zeros(3),
+        "moved_m": np.array([0.5, 5.0, 0.2]), "final_x": np.array([1.4, 2.0, 3.1]), "final_y": np.array([0.1, 0.0, 0.2]),
+        "anchor_x": np.array([-4.0, -3.0, -2.0]), "anchor_y": np.array([0.0, 1.0, 2.0]), "residual_m": np.array([0.01, 4.0, 0.02]),
+        "sigma_along_m": np.array([0.03, 0.03, 10.0]),
+    })
+
+
+def test_the_closures_are_drawn_where_they_tie_and_rejected_ones_where_they_pointed():
+    fig = loops_figure(None, _loops(), None)
+    lines = {ln.get_label(): ln for ln in fig.axes[0].get_lines()}
+    full = lines["accepted closure"]
+    assert list(full.get_xdata()) == [1.4, -4.0] and list(full.get_ydata()) == [0.1, 0.0]  # node to submap node
+    corridor = lines["accepted, across a corridor only"]
+    assert corridor.get_linestyle() == "--" and list(corridor.get_xdata()) == [3.1, -2.0]
+    crosses = lines["rejected candidate (where it put the robot)"]
+    assert list(crosses.get_xdata()) == [7.0]
+
+
+def test_a_graph_runs_report_has_the_section_and_other_runs_do_not(tmp_path):
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / RunFile.METRICS).write_text(json.dumps({"status": "ok", "filter": "graph", "graph": {
+        "nodes": 13, "submaps": 2, "searches": 9, "candidates": 3, "accepted": 2, "by_status": {"accepted": 2, "ambiguous": 1},
+        "update_s": 0.1, "optimisations": 1, "optimise_s": 0.2, "search_s": 0.3, "largest_correction_m": 0.5, "redraws": 0}}))
+    assert loops_section(load_run(run_dir)) is None  # no loops.csv: not a graph run
+    write_table(run_dir / RunFile.LOOPS, _loops())
+    section = loops_section(load_run(run_dir))
+    assert section is not None and section.images
+    assert "3 candidates: 2 accepted, rejected: 1 ambiguous" in section.note
+    # the table: accepted closures, the one that moved the robot most first
+    assert [r[2] for r in section.rows] == ["0.50", "0.20"] and section.rows[1][5] == "across a corridor"
