@@ -45,7 +45,7 @@ from slamlab.slam.graph.loops import ACCEPTED, PRUNED, REFUTED, LoopCandidate, L
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.submaps import Submaps
 from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, correction_fits
-from slamlab.slam.grid import OccupancyGrid
+from slamlab.slam.mapping import map_from_trajectory
 from slamlab.slam.matcher import LikelihoodFieldMatcher
 from slamlab.slam.plan import BetweenScans, Components, plan_steps
 from slamlab.slam.result import SlamResult
@@ -179,9 +179,10 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
     final_s = _optimise(graph, by_loop, s.prune_m, s.prune_rad, from_lago=False) if graph.loops else 0.0
     runtime = time.perf_counter() - t_loop
     smooth = graph.poses.copy()
-    final_map = _render_map(ms, [points(i) for i in step_scans], smooth)
     if between is not None:
         between = between[: len(odom)]
+    trajectory = fill_between_steps(step_scans, smooth, odom, between)
+    final_map = map_from_trajectory(sequence, trajectory, ms, scan_indices=step_scans)  # every node's scan at its optimised pose
     steps = Table({
         "step": np.arange(n_steps),
         "scan_index": np.array([scans[i].index for i in step_scans], dtype=np.int64),
@@ -194,7 +195,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
     status = [cand.status for cand in candidates]
     return SlamResult(
         times=times,
-        trajectory=fill_between_steps(step_scans, smooth, odom, between),
+        trajectory=trajectory,
         causal=fill_between_steps(step_scans, causal, odom, between),
         odometry=se2_compose(start, se2_between(odom[step_scans[0]], odom)),
         log_odds=final_map,
@@ -377,12 +378,3 @@ def _optimise(graph: PoseGraph, by_loop: dict[int, LoopCandidate], prune_m: floa
             break
         graph.optimise_batch(from_lago=from_lago)
     return time.perf_counter() - t0
-
-
-def _render_map(settings, scans_points, poses: FloatArray):
-    """The final map: every node's scan ray-cast from its pose into one log-odds grid."""
-    grid = OccupancyGrid(settings, (float(poses[0, 0]), float(poses[0, 1])))
-    for pts, pose in zip(scans_points, poses):
-        if len(pts.xy):
-            grid.insert(points_to_world(pts.origin.reshape(1, 2), pose)[0], points_to_world(pts.xy, pose))
-    return grid.to_image()

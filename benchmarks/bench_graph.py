@@ -1,0 +1,184 @@
+"""The loop-closure issue's table: `filter=course,rbpf,graph` side by side on every log the
+project has, with `+experiment=lidar2d` (CARMEN logs) or `+experiment=sim_loops`.
+
+    .venv/bin/python benchmarks/bench_graph.py [--only logs,probes,sim_loops,hospital,timing] [--filters course,rbpf,graph]
+                                              [--jobs 2] [--out DIR] [--set KEY=VALUE ...]
+
+- logs: Intel and ACES at the preset's steps (0.5 m / 0.5 rad) and at half of them; mean
+  relation error of the smoothed and of the causal (online) path (budget of the graph issue:
+  Intel <= 0.022 m, ACES <= 0.037 m, both, the worst of seeds 0-4 where anything is random:
+  course and rbpf run seeds 0-4, graph has no randomness and runs once per step).
+- probes: the FR079-like corridor probe (benchmarks/sim_carmen.py: the `loops` building at 2x
+  and 3x, worlds 0-3; wheel odometry drifting tens of metres; written once into OUT/probes):
+  relation error, smoothed and causal, and of the loop relations alone.
+- sim_loops: `+experiment=sim_loops` at world_scale 1.5 and 2.0, dataset seeds 0-4
+  (`texture=none report=false`): ATE RMSE unaligned and aligned, smoothed and causal (budget:
+  worst <= 0.10 m unaligned, <= 0.05 m aligned).
+- hospital: the Freiburg hospital log (no relations): wall, CPU, peak memory and the map's
+  consistency (hit_fraction_p10 and the verdict).
+- timing: one whole `slamlab +experiment=lidar2d` process per filter on Intel, with its report,
+  alone: wall, CPU, peak memory (budget of the graph issue: <= 4 s, <= 250 MB).
+Runs go `--jobs` at a time with one numba thread each (results do not depend on the thread
+count), except timing and hospital, which run alone with the machine's threads.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import tempfile
+from pathlib import Path
+
+import pandas as pd
+
+from slamlab.paths import data_dir
+
+_here = Path(__file__).resolve().parent
+_spec = importlib.util.spec_from_file_location("bench_filters", _here / "bench_filters.py")
+bench_filters = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(bench_filters)
+_spec = importlib.util.spec_from_file_location("sim_carmen", _here / "sim_carmen.py")
+sim_carmen = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(sim_carmen)
+
+BUDGET = {"intel": 0.022, "aces": 0.037}  # the graph issue's relation-error budget (m), smoothed and causal
+FILTERS = ("course", "rbpf", "graph")
+PRESET_STEP = 0.5
+
+
+def _seeds(flt: str) -> range:
+    return range(1) if flt == "graph" else range(5)
+
+
+def _rel(r: dict) -> dict:
+    rel = r.get("relations", {})
+    causal = rel.get("causal", {})
+    nan = float("nan")
+    return {"smoothed_m": rel.get("trans_abs_mean_m", nan), "causal_m": causal.get("trans_abs_mean_m", nan),
+            "smoothed_loop_m": rel.get("loop", {}).get("trans_abs_mean_m", nan), "causal_loop_m": causal.get("loop", {}).get("trans_abs_mean_m", nan)}
+
+
+def _common(r: dict) -> dict:
+    g = r.get("graph") or {}
+    return {"filter_s": r.get("runtime_s", float("nan")), "closures": g.get("accepted"), "status": r.get("status", "?")}
+
+
+def logs(out: Path, n_jobs: int, filters: tuple[str, ...]) -> None:
+    d = data_dir()
+    jobs = []
+    for log in BUDGET:
+        for step in (PRESET_STEP, PRESET_STEP / 2):
+            for flt in filters:
+                for seed in _seeds(flt):
+                    args = ["+experiment=lidar2d", f"filter={flt}", f"dataset.path={d / 'carmen' / (log + '.clf.bz2')}", f"seed={seed}",
+                            f"steps.min_distance_m={step}", f"steps.min_angle_rad={step}"]
+                    jobs.append(({"log": log, "step": step, "filter": flt, "seed": seed}, args))
+    rows = [{**r["job"], **_rel(r), **_common(r)} for r in bench_filters._many(jobs, out / "logs", n_jobs)]
+    df = pd.DataFrame(rows)
+    g = df.groupby(["log", "step", "filter"]).agg(worst_smoothed_m=("smoothed_m", "max"), worst_causal_m=("causal_m", "max"),
+                                                  mean_smoothed_m=("smoothed_m", "mean"), mean_causal_m=("causal_m", "mean"),
+                                                  worst_loop_m=("smoothed_loop_m", "max"), filter_s=("filter_s", "mean"),
+                                                  runs=("seed", "count")).reset_index()
+    g["budget_m"] = g["log"].map(BUDGET)
+    g["pass"] = (g["worst_smoothed_m"] <= g["budget_m"]) & (g["worst_causal_m"] <= g["budget_m"])
+    print("\n## Intel and ACES: relation error (m), worst and mean over the seeds (graph: one run, nothing random)")
+    print(g.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
+
+
+def probes(out: Path, n_jobs: int, filters: tuple[str, ...]) -> None:
+    folder = out / "probes"
+    clfs = []
+    for scale in (2.0, 3.0):
+        for world in range(4):
+            clf = folder / f"loops{scale:g}x_w{world}.clf"
+            if not clf.is_file():
+                sim_carmen.write_log(folder, scale, world, 0, 300, sim_carmen.ODOM["yaw_bias_deg_per_m"])
+            clfs.append((scale, world, clf))
+    jobs = [({"scale": s, "world": w, "filter": flt}, ["+experiment=lidar2d", f"filter={flt}", f"dataset.path={clf}"])
+            for s, w, clf in clfs for flt in filters]
+    rows = [{**r["job"], **_rel(r), **_common(r)} for r in bench_filters._many(jobs, out / "probe-runs", n_jobs)]
+    df = pd.DataFrame(rows)
+    print("\n## corridor probe (sim_carmen): relation error per run (m)")
+    print(df.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
+    g = df.groupby(["scale", "filter"]).agg(mean_smoothed_m=("smoothed_m", "mean"), worst_smoothed_m=("smoothed_m", "max"),
+                                             mean_causal_m=("causal_m", "mean"), worst_causal_m=("causal_m", "max"),
+                                             worst_loop_m=("smoothed_loop_m", "max")).reset_index()
+    print("\n## corridor probe: over the four worlds")
+    print(g.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
+
+
+def sim_loops(out: Path, n_jobs: int, filters: tuple[str, ...]) -> None:
+    jobs = [({"scale": scale, "seed": seed, "filter": flt},
+             ["+experiment=sim_loops", f"filter={flt}", f"dataset.world_scale={scale}", f"dataset.seed={seed}", "texture=none"])
+            for scale in (1.5, 2.0) for seed in range(5) for flt in filters]
+    rows = []
+    for r in bench_filters._many(jobs, out / "sim_loops", n_jobs):
+        t = r.get("trajectory", {})
+        nan = float("nan")
+        rows.append({**r["job"], "ate_m": t.get("rmse_m", nan), "aligned_m": t.get("aligned_rmse_m", nan),
+                     "causal_m": t.get("causal_rmse_m", nan), **_common(r)})
+    df = pd.DataFrame(rows)
+    print("\n## sim_loops: ATE RMSE per run (m)")
+    print(df.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    g = df.groupby(["scale", "filter"]).agg(worst_ate_m=("ate_m", "max"), worst_aligned_m=("aligned_m", "max"),
+                                             mean_ate_m=("ate_m", "mean"), worst_causal_m=("causal_m", "max"),
+                                             filter_s=("filter_s", "mean")).reset_index()
+    print("\n## sim_loops: worst of dataset seeds 0-4 (budget: <= 0.10 m unaligned, <= 0.05 m aligned)")
+    print(g.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+
+
+def hospital(out: Path, filters: tuple[str, ...]) -> None:
+    d = data_dir()
+    rows = []
+    for flt in filters:
+        m = bench_filters.slamlab(["+experiment=lidar2d", f"filter={flt}", f"dataset.path={d / 'carmen' / 'fr-clinic_robotlaser.clf.bz2'}"],
+                                  out / f"hospital-{flt}")
+        c = m.get("consistency", {})
+        rows.append({"filter": flt, "wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s"), "peak_mb": m.get("peak_memory_mb"),
+                     "hit_fraction_p10": c.get("hit_fraction_p10"), "verdict": c.get("verdict"),
+                     "worst_window": c.get("contradiction_worst_window"), **_common(m)})
+    print("\n## hospital (fr-clinic, 6,917 scans): graph budget <= 20 s, <= 400 MB; consistency p10 above the RBPF's")
+    print(pd.DataFrame(rows).to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+
+
+def timing(out: Path, filters: tuple[str, ...]) -> None:
+    d = data_dir()
+    rows = []
+    for flt in filters:
+        m = bench_filters.slamlab(["+experiment=lidar2d", f"filter={flt}", f"dataset.path={d / 'carmen' / 'intel.clf.bz2'}", "report=true"],
+                                  out / f"timing-{flt}")
+        rows.append({"filter": flt, "wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s"), "filter_s": m.get("runtime_s"),
+                     "peak_mb": m.get("peak_memory_mb"), **_common(m)})
+    print("\n## Intel, one whole process with its report, alone (graph budget <= 4 s, <= 250 MB; GMapping here 42 s CPU, 129 MB)")
+    print(pd.DataFrame(rows).to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", default="logs,probes,sim_loops,hospital,timing")
+    ap.add_argument("--filters", default=",".join(FILTERS))
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=None, help="keep the run folders (and the probe logs) here")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a config override added to every run")
+    args = ap.parse_args()
+    bench_filters.EXTRA_OVERRIDES.extend(args.set)
+    filters = tuple(args.filters.split(","))
+    parts = args.only.split(",")
+    if data_dir() is None and any(p in parts for p in ("logs", "hospital", "timing")):
+        raise SystemExit("shared data not found: set SLAMLAB_DATA_DIR")
+    with tempfile.TemporaryDirectory(prefix="slamlab-bench-graph-") as tmp:
+        out = args.out or Path(tmp)
+        if "timing" in parts:
+            timing(out, filters)
+        if "hospital" in parts:
+            hospital(out, filters)
+        if "logs" in parts:
+            logs(out, args.jobs, filters)
+        if "probes" in parts:
+            probes(out, args.jobs, filters)
+        if "sim_loops" in parts:
+            sim_loops(out, args.jobs, filters)
+
+
+if __name__ == "__main__":
+    main()
