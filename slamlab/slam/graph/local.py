@@ -138,7 +138,11 @@ class LocalSlam:
         """Add node `node`'s scan at its poses: the online map's and the submaps'; returns the
         submaps it finished."""
         if self.grid is not None and len(scan.xy):
-            self.grid.insert(points_to_world(scan.origin.reshape(1, 2), self.online)[0], points_to_world(scan.xy, self.online))
+            # the online map takes the points the matcher matches (lone far hits left out): seen at a
+            # grazing angle they map a wall as a comb of blobs, which holds the next matches back along
+            # it (probe: mean relation error 0.095 -> 0.075 m at 2x, 0.17 -> 0.10 m at 3x)
+            walls = self.matcher.fine_points(scan)
+            self.grid.insert(points_to_world(scan.origin.reshape(1, 2), self.online)[0], points_to_world(walls, self.online))
         return self.submaps.insert(node, self.chain, scan)
 
     def redraw(self, scans: SequenceABC[ScanPoints], poses: FloatArray) -> None:
