@@ -153,7 +153,7 @@ class LocalSlam:
         self.redraws += 1
         grid = self._new_grid((float(poses[0, 0]), float(poses[0, 1])))
         sensors = np.array([points_to_world(pts.origin.reshape(1, 2), pose)[0] for pts, pose in zip(scans, poses)])
-        grid.insert_many(sensors, [points_to_world(pts.xy, pose) for pts, pose in zip(scans, poses)])
+        grid.insert_many(sensors, [points_to_world(self.matcher.fine_points(pts) if len(pts.xy) else pts.xy, pose) for pts, pose in zip(scans, poses)])
         self.grid = grid
         self.online = np.asarray(poses[-1], dtype=np.float64).copy()
 
