@@ -271,12 +271,12 @@ def test_scans_between_steps_matched_causally_leave_the_filter_alone(filt):
 
 @pytest.mark.slow
 def test_scans_between_steps_prepared_in_chunks_whatever_the_chunk(monkeypatch):
-    """The scans between steps are prepared a chunk of steps at a time (`_BetweenScans`): the
+    """The scans between steps are prepared a chunk of steps at a time (`plan.BetweenScans`): the
     run is the same, to the bit, one step at a time, with scans that have no points at the
     start, inside and at the end of a chunk (they keep their odometry)."""
     import dataclasses
 
-    from slamlab.slam import engine
+    from slamlab.slam import plan
 
     room = _room_sequence()
     blank = {1, 30, 59}  # steps every 4th scan of 60: scans 1 and 59 open and close the one 15-step chunk
@@ -285,7 +285,7 @@ def test_scans_between_steps_prepared_in_chunks_whatever_the_chunk(monkeypatch):
     keys = ("filter=rbpf", "particles=10", "matcher=likelihood", "matcher.max_gap_m=0.6", "seed=2", "steps.every=4",
             "steps.between=match")
     chunked = run_slam(seq, build_components(_cfg(*keys)))
-    monkeypatch.setattr(engine._BetweenScans, "CHUNK_STEPS", 1)
+    monkeypatch.setattr(plan.BetweenScans, "CHUNK_STEPS", 1)
     one = run_slam(seq, build_components(_cfg(*keys)))
     assert chunked.causal.tobytes() == one.causal.tobytes() and chunked.trajectory.tobytes() == one.trajectory.tobytes()
     odo = run_slam(seq, build_components(_cfg(*keys[:-1])))  # the scans between steps filled by odometry

@@ -6,7 +6,8 @@ Each result file of the run folder (`run_compare.result_files`: everything but t
 i.e. manifest, logs, report, .hydra/) is reduced to a sha256 of what `slamlab-verify`
 compares: arrays of an .npz (names, dtypes, shapes, bytes; the zip's own bytes carry dates),
 metrics.json and steps.csv without the timing and memory figures (`run_compare.VOLATILE`),
-every other file's bytes. `RESULTS_BEFORE` holds those digests as e5c8188 wrote them, made by
+every other file's bytes; the map-consistency files and section, which issue 45 replaced on
+purpose, are left out. `RESULTS_BEFORE` holds those digests as e5c8188 wrote them, made by
 this file's `main` with that commit's code first on the path:
 
     git worktree add /tmp/old e5c8188   # or: git archive e5c8188 | tar -x -C /tmp/old
@@ -46,6 +47,12 @@ def _without_volatile(d: object, volatile) -> object:
     return d
 
 
+# What issue 45 changed on purpose (the map-consistency verdict replaced the old score): its
+# files and its metrics section are not SLAM results and are left out of the comparison.
+CONSISTENCY_FILES = frozenset({"consistency.csv", "consistency_map.npz"})
+CONSISTENCY_KEY = "consistency"
+
+
 def file_digest(path: Path) -> str:
     """sha256 of what a re-run must reproduce of one result file (module doc)."""
     from slamlab.io.rundir import RunFile
@@ -60,6 +67,7 @@ def file_digest(path: Path) -> str:
                 h.update(np.ascontiguousarray(a).tobytes())
     elif path.name == RunFile.METRICS:
         kept = _without_volatile(json.loads(path.read_text()), VOLATILE)
+        kept.pop(CONSISTENCY_KEY, None)
         h.update(json.dumps(kept, sort_keys=True).encode())
     elif path.name == RunFile.STEPS_CSV:
         rows = list(csv.reader(io.StringIO(path.read_text())))
@@ -74,7 +82,7 @@ def file_digest(path: Path) -> str:
 def run_digests(run_dir: Path) -> dict[str, str]:
     from slamlab.run_compare import result_files
 
-    return {name: file_digest(run_dir / name) for name in sorted(result_files(run_dir))}
+    return {name: file_digest(run_dir / name) for name in sorted(result_files(run_dir)) if name not in CONSISTENCY_FILES}
 
 
 def run_slamlab(args: list[str], run_dir: Path, cache: Path | None) -> None:
