@@ -1,0 +1,86 @@
+"""The occupancy grid's likelihood field is kept up to date incrementally (`OccupancyGrid.insert`:
+lowered around cells that turned free, raised around new walls) and drawn in one go for a whole
+map (`insert_many`). Both must give the values of the plain algorithm: recompute the field over
+the box of every changed cell after each scan (`raycast.update_field`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slamlab.config.slam import MapConfig
+from slamlab.slam.grid import OccupancyGrid
+from slamlab.slam.raycast import raycast_update, update_field
+
+_NO_FLIP = (np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1)
+
+
+def _random_scan(rng: np.random.Generator, spread_m: float, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
+    n = int(rng.integers(1, 200))
+    sensor = rng.uniform(-spread_m, spread_m, 2)
+    ang, r = rng.uniform(0, 2 * np.pi, n), rng.uniform(0.5, reach_m, n)
+    return sensor, np.column_stack([sensor[0] + r * np.cos(ang), sensor[1] + r * np.sin(ang)])
+
+
+def _reference_insert(g: OccupancyGrid, lo: np.ndarray, field: np.ndarray, sensor: np.ndarray, pts: np.ndarray) -> None:
+    """One scan into (lo, field) by the plain algorithm: the field recomputed over the changed box."""
+    s = g.s
+    rows, cols = g.cells(pts)
+    sr, sc = g.cells(sensor.reshape(1, 2))
+    flip = np.array(_NO_FLIP, dtype=np.int64)
+    raycast_update(lo, int(sr[0]), int(sc[0]), rows, cols, np.float32(s.log_odds_occupied), np.float32(s.log_odds_free),
+                   np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold), flip)
+    if flip[1] >= 0:
+        R = g.kernel.shape[0] // 2
+        H, W = lo.shape
+        update_field(lo, field, np.float32(s.occupied_threshold), g.kernel,
+                     max(flip[0] - R, 0), min(flip[1] + R + 1, H), max(flip[2] - R, 0), min(flip[3] + R + 1, W))
+
+
+def test_incremental_field_equals_recomputing_the_changed_box():
+    rng = np.random.default_rng(0)
+    g = OccupancyGrid(MapConfig(initial_size_m=20.0), (0.0, 0.0), 0.1, 0.3)
+    lo, field = g.log_odds.copy(), g.field.copy()
+    changed = 0
+    for i in range(300):
+        sensor, pts = _random_scan(rng, 3.0, 6.0)  # stays inside the 20 m grid: no growth to mirror
+        if i % 7 == 0:
+            pts = np.round(pts, 1)  # the same wall cells hit again, and free cells crossed by later beams
+        g.insert(sensor, pts)
+        _reference_insert(g, lo, field, sensor, pts)
+        assert g.shape == lo.shape
+        assert np.array_equal(g.log_odds, lo), f"log-odds differ after scan {i}"
+        assert np.array_equal(g.field, field), f"field differs after scan {i}"
+        changed += int(np.count_nonzero(field))
+    assert changed > 0  # the scans drew walls: the comparison saw a field
+
+
+def _common_box(a: OccupancyGrid, b: OccupancyGrid) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """(log-odds, field) of both grids cut to the world area both cover (same resolution, cell-aligned)."""
+    o = np.maximum(a.origin, b.origin)
+    hi = np.minimum(a.origin + np.array(a.shape[::-1]) * a.res, b.origin + np.array(b.shape[::-1]) * b.res)
+    rows, cols = int(round((hi[1] - o[1]) / a.res)), int(round((hi[0] - o[0]) / a.res))
+
+    def cut(g: OccupancyGrid) -> tuple[np.ndarray, np.ndarray]:
+        dc, dr = int(round((o[0] - g.origin[0]) / g.res)), int(round((o[1] - g.origin[1]) / g.res))
+        return g.log_odds[dr:dr + rows, dc:dc + cols], g.field[dr:dr + rows, dc:dc + cols]
+
+    return cut(a), cut(b)
+
+
+def test_insert_many_equals_inserting_one_scan_at_a_time():
+    """Scans reaching beyond the initial grid: one-by-one grows it several times, insert_many once."""
+    rng = np.random.default_rng(1)
+    s = MapConfig(initial_size_m=20.0)
+    one, many = OccupancyGrid(s, (0.0, 0.0), 0.05, 0.3), OccupancyGrid(s, (0.0, 0.0), 0.05, 0.3)
+    sensors, scans = [], []
+    for _ in range(100):
+        sensor, pts = _random_scan(rng, 8.0, 12.0)
+        one.insert(sensor, pts)
+        sensors.append(sensor)
+        scans.append(pts)
+    many.insert_many(np.array(sensors), scans)
+    assert one.grow_count > 1 and many.grow_count == 1
+    (lo_a, f_a), (lo_b, f_b) = _common_box(one, many)
+    assert lo_a.shape == one.shape  # the one-by-one grid lies wholly inside the other
+    assert np.array_equal(lo_a, lo_b) and np.array_equal(f_a, f_b)
+    assert np.count_nonzero(many.log_odds) == np.count_nonzero(one.log_odds)  # nothing drawn outside it
