@@ -319,8 +319,11 @@ class GraphFilterConfig:
     local_map: str = "map"  # local SLAM: `map` (each scan matched against everything mapped so far, at the online poses;
     # redrawn after a large correction), `submap` (against the older active submap, as Cartographer) or `particles` (the
     # RBPF, `particles` of them, with the run's motion, weighting and resampler; restarted after a large correction)
-    redraw_m: float = 0.3  # local_map=map: when the graph puts the robot this far (m) or redraw_rad from where the
-    redraw_rad: float = 0.035  # local map has it, the map is drawn again from the graph (the online pose jumps to the graph's)
+    redraw_m: float = 0.15  # local_map=map: when the graph puts the robot this far (m) or redraw_rad from where the
+    redraw_rad: float = 0.035  # local map has it, the map is drawn again from the graph (the online pose jumps to the graph's).
+    # 0.15 against 0.3 (bench_graph.py, 2026-11-29): ACES worst causal 0.0399 / 0.0382 m at 0.5 / 0.25 m steps (0.0417 /
+    # 0.0517), corridor probe worst smoothed 0.113 / 0.100 m at 2x / 3x (0.140 / 0.110; worst causal 0.190 / 0.207 against
+    # 0.182 / 0.156), sim_loops worst ATE 0.268 / 0.396 m at 1.5 / 2.0 (0.142 / 0.474); Intel unchanged (no redraw there)
     submap_nodes: int = 20  # nodes (processed scans) inserted into each submap; a new one starts every half of it
     # ---- loop search (branch and bound on the finished submaps)
     search_resolution_m: float = 0.1  # cell of the search grid (rounded to a whole number of map cells)
