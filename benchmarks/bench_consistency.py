@@ -46,13 +46,15 @@ def data(name: str) -> str:
     return str(Path(d) / "carmen" / name)
 
 
-# source run name -> slamlab arguments
+# source run name -> slamlab arguments (the lidar2d runs: the RBPF, the preset's filter when the table was made;
+# the preset runs filter=graph since 2026-11-29)
+RBPF = "filter=rbpf"
 SOURCES: dict[str, list[str]] = {
-    "intel_s0": ["+experiment=lidar2d", f"dataset.path={data('intel.clf.bz2')}"],
-    "intel_s1": ["+experiment=lidar2d", f"dataset.path={data('intel.clf.bz2')}", "seed=1"],
-    "aces_s0": ["+experiment=lidar2d", f"dataset.path={data('aces.clf.bz2')}"],
-    "aces_s1": ["+experiment=lidar2d", f"dataset.path={data('aces.clf.bz2')}", "seed=1"],
-    "hospital_s0": ["+experiment=lidar2d", f"dataset.path={data('fr-clinic_robotlaser.clf.bz2')}"],
+    "intel_s0": ["+experiment=lidar2d", RBPF, f"dataset.path={data('intel.clf.bz2')}"],
+    "intel_s1": ["+experiment=lidar2d", RBPF, f"dataset.path={data('intel.clf.bz2')}", "seed=1"],
+    "aces_s0": ["+experiment=lidar2d", RBPF, f"dataset.path={data('aces.clf.bz2')}"],
+    "aces_s1": ["+experiment=lidar2d", RBPF, f"dataset.path={data('aces.clf.bz2')}", "seed=1"],
+    "hospital_s0": ["+experiment=lidar2d", RBPF, f"dataset.path={data('fr-clinic_robotlaser.clf.bz2')}"],
     "sim_default": ["texture=none"],
     "loops15_s0": ["+experiment=sim_loops", "texture=none"],
     "loops15_s1": ["+experiment=sim_loops", "seed=1", "texture=none"],

@@ -37,7 +37,8 @@ def runs(data: Path | None) -> dict[str, list[str]]:
     """The runs compared, as `slamlab` arguments (no report: it is a record, not a result)."""
     out = {"sim": ["report=false"]}
     if data is not None:
-        out["intel"] = ["+experiment=lidar2d", f"dataset.path={data / 'carmen' / 'intel.clf.bz2'}", "report=false"]
+        # the RBPF, as `lidar2d` ran it at e5c8188 (the preset's filter is `graph` since 2026-11-29)
+        out["intel"] = ["+experiment=lidar2d", "filter=rbpf", f"dataset.path={data / 'carmen' / 'intel.clf.bz2'}", "report=false"]
     return out
 
 
