@@ -84,3 +84,22 @@ def test_insert_many_equals_inserting_one_scan_at_a_time():
     assert lo_a.shape == one.shape  # the one-by-one grid lies wholly inside the other
     assert np.array_equal(lo_a, lo_b) and np.array_equal(f_a, f_b)
     assert np.count_nonzero(many.log_odds) == np.count_nonzero(one.log_odds)  # nothing drawn outside it
+
+
+def test_a_field_started_late_equals_one_kept_from_the_start():
+    """`start_field` on a grid built without a field (a graph submap, whose field is only read
+    once it is finished): the values `insert` would have kept scan by scan, and kept after."""
+    rng = np.random.default_rng(2)
+    s = MapConfig(initial_size_m=4.0)
+    kept, late = OccupancyGrid(s, (0.0, 0.0), 0.1, 0.3), OccupancyGrid(s, (0.0, 0.0))
+    grown_at_start = 0
+    for i in range(60):
+        sensor, pts = _random_scan(rng, 1.0 + i, 4.0 + i)  # ever farther: the grids grow before and after the start
+        kept.insert(sensor, pts)
+        late.insert(sensor, pts)
+        if i == 20:
+            late.start_field(0.1, 0.3)
+            grown_at_start = late.grow_count
+            assert np.array_equal(late.field, kept.field)
+    assert late.grow_count > grown_at_start >= 1 and late.shape == kept.shape
+    assert np.array_equal(late.log_odds, kept.log_odds) and np.array_equal(late.field, kept.field)

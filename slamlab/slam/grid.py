@@ -103,6 +103,14 @@ class OccupancyGrid:
             if r1 > r0 and c1 > c0:
                 update_field(self.log_odds, self.field, thr, self.kernel, r0, r1, c0, c1)
 
+    def start_field(self, field_sigma_m: float, field_radius_m: float) -> None:
+        """Compute the likelihood field of a grid built without one (the values `insert` would
+        have kept up to date, scan by scan: tested) and keep it from now on."""
+        assert self.field is None and field_sigma_m > 0, "the grid has a field already, or none is asked for"
+        self.kernel = gaussian_kernel(field_sigma_m / self.res, field_radius_cells(field_sigma_m, field_radius_m, self.res))
+        self.field = np.zeros(self.shape, dtype=np.float32)
+        self._refresh_field(self.field, 0, self.shape[0], 0, self.shape[1])
+
     def insert(self, sensor_xy: FloatArray, points_xy: FloatArray) -> None:
         """Ray-cast one scan: sensor position (2,) m, world hit points (M, 2) m."""
         if len(points_xy) == 0:

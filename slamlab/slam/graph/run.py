@@ -81,7 +81,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
         return scan_to_points(scans[i], sequence.body_height_m, min_r, max_r, ms.ground_threshold_m)
 
     start = odom[step_scans[0]].copy()
-    submaps = Submaps(ms, s.submap_nodes, matcher.field_sigma_m, matcher.field_radius_m)
+    submaps = Submaps(ms, s.submap_nodes, matcher.field_sigma_m, matcher.field_radius_m, field_when_finished=s.local_map == "map")
     if s.local_map == "particles":
         tracker: LocalSlam = ParticleTracker(matcher, ms, submaps, start, c.particles, c.motion, c.weighting, c.resampler, c.seed, s.online)
     else:

@@ -123,7 +123,8 @@ class ActiveSubmap:
 class Submaps:
     """The active submaps and the finished ones (see module doc)."""
 
-    def __init__(self, settings: MapSettings, nodes_per_submap: int, field_sigma_m: float, field_radius_m: float, overlap: bool = True) -> None:
+    def __init__(self, settings: MapSettings, nodes_per_submap: int, field_sigma_m: float, field_radius_m: float, overlap: bool = True,
+                 field_when_finished: bool = False) -> None:
         self.settings = settings
         self.n = int(nodes_per_submap)
         # two active at once (a new one every n / 2 nodes), or one (a new one every n nodes: when
@@ -131,6 +132,9 @@ class Submaps:
         self.start_every = max(self.n // 2, 1) if overlap else self.n
         self.sigma = field_sigma_m
         self.radius = field_radius_m
+        # when no scan is matched against an active submap (local_map=map), its likelihood field is
+        # computed once when it is finished instead of scan by scan (the same values: grid.start_field)
+        self.field_when_finished = field_when_finished
         self.active: list[ActiveSubmap] = []
         self.finished: list[FinishedSubmap] = []
         self.anchors: list[int] = []  # submap index -> anchor node
@@ -165,7 +169,8 @@ class Submaps:
         new one when due); returns the submaps this finished."""
         if not self.active or self.active[-1].count >= self.start_every:
             index = len(self.anchors)
-            grid = OccupancyGrid(self._submap_settings(), (float(local_pose[0]), float(local_pose[1])), self.sigma, self.radius)
+            grid = OccupancyGrid(self._submap_settings(), (float(local_pose[0]), float(local_pose[1])),
+                                 0.0 if self.field_when_finished else self.sigma, self.radius)
             self.active.append(ActiveSubmap(index, node, np.asarray(local_pose, dtype=np.float64).copy(), grid))
             self.anchors.append(node)
         if len(scan.xy):
@@ -193,6 +198,8 @@ class Submaps:
 
     def _finish(self, s: ActiveSubmap, last_node: int) -> FinishedSubmap:
         g = s.grid
+        if g.field is None:
+            g.start_field(self.sigma, self.radius)
         assert g.field is not None
         known = np.flatnonzero(g.log_odds.any(axis=1)), np.flatnonzero(g.log_odds.any(axis=0))
         R = int(g.kernel.shape[0] // 2) if g.kernel is not None else 0
