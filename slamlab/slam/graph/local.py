@@ -151,11 +151,17 @@ class LocalSlam:
         nodes 0..K-1), the newest node's online pose becoming its optimised one."""
         assert self.grid is not None, "local_map=submap keeps no online map"
         self.redraws += 1
+        self.grid = None  # let the old map go first: on a building the size of the hospital log it is ~300 MB
         grid = self._new_grid((float(poses[0, 0]), float(poses[0, 1])))
         sensors = np.array([points_to_world(pts.origin.reshape(1, 2), pose)[0] for pts, pose in zip(scans, poses)])
         grid.insert_many(sensors, [points_to_world(self.matcher.fine_points(pts) if len(pts.xy) else pts.xy, pose) for pts, pose in zip(scans, poses)])
         self.grid = grid
         self.online = np.asarray(poses[-1], dtype=np.float64).copy()
+
+    def drop_online_map(self) -> None:
+        """After the last node: the online map is not read again (the final map is drawn anew
+        from the optimised poses), so its memory goes before that map is made."""
+        self.grid = None
 
     def memory_mb(self) -> float:
         own = 0 if self.grid is None else self.grid.log_odds.nbytes + (self.grid.field.nbytes if self.grid.field is not None else 0)

@@ -182,6 +182,8 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
     if between is not None:
         between = between[: len(odom)]
     trajectory = fill_between_steps(step_scans, smooth, odom, between)
+    map_mb = tracker.memory_mb()
+    tracker.drop_online_map()
     final_map = map_from_trajectory(sequence, trajectory, ms, scan_indices=step_scans)  # every node's scan at its optimised pose
     steps = Table({
         "step": np.arange(n_steps),
@@ -214,7 +216,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
             "neff_min": 1.0,
             "filter": f.name,
             "matcher_map_reads": int(matcher.map_reads),
-            "map_mb": tracker.memory_mb(),
+            "map_mb": map_mb,
             "map_peak_mb": submaps.peak_mb,
             "graph": {
                 "nodes": int(graph.n),
