@@ -349,7 +349,11 @@ class GraphFilterConfig:
     loop_min_path_m: float = 30.0  # a larger correction comes only from a submap not tied to the robot for this long (m of path)
     far_m: float = 1.0  # accepted closures this far (m) from the estimate: optimise the whole graph from LAGO at once
     group_size: int = 3  # closures from a wider window enter in pairwise-consistent groups of at least this many
-    group_extent_m: float = 8.0  # ... whose nodes spread over at least this much of the path (m)
+    group_extent_m: float = 2.0  # ... whose nodes spread over at least this much of the path (m). 8 until 2026-11-29: at coarse
+    # steps (1.0 m) a loop's return gave closures from 3 nodes within 4 m, which never formed a group (Intel at 1.0 m steps
+    # 0.896 m -> 0.026 m; ACES 0.15 / 0.35 m steps 0.047 / 0.044 -> 0.042 / 0.041 m; the preset's steps, the corridor probes
+    # and sim_loops 2.0 unchanged, sim_loops 1.5 worst 0.268 -> 0.226 m: bench_graph.py). Each search already matches the
+    # last `query_m` of scans together, so three nodes 2 m apart are three views of that much of the building
     group_span_m: float = 20.0  # candidates wait this far (m of travel) for their group
     consistency_m: float = 0.3  # pairwise cycle error allowed (m) ...
     consistency_per_m: float = 0.02  # ... plus this per metre of the cycle's path
