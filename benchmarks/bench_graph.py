@@ -100,14 +100,18 @@ def probes(out: Path, n_jobs: int, filters: tuple[str, ...]) -> None:
     jobs = [({"scale": s, "world": w, "filter": flt}, ["+experiment=lidar2d", f"filter={flt}", f"dataset.path={clf}"])
             for s, w, clf in clfs for flt in filters]
     rows = [{**r["job"], **_rel(r), **_common(r)} for r in bench_filters._many(jobs, out / "probe-runs", n_jobs)]
-    df = pd.DataFrame(rows)
-    print("\n## corridor probe (sim_carmen): relation error per run (m)")
-    print(df.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
-    g = df.groupby(["scale", "filter"]).agg(mean_smoothed_m=("smoothed_m", "mean"), worst_smoothed_m=("smoothed_m", "max"),
-                                             mean_causal_m=("causal_m", "mean"), worst_causal_m=("causal_m", "max"),
-                                             worst_loop_m=("smoothed_loop_m", "max")).reset_index()
-    print("\n## corridor probe: over the four worlds")
-    print(g.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
+    _runs_and_worst(pd.DataFrame(rows), "corridor probe (sim_carmen): relation error per run (m)", "corridor probe: over the four worlds", 4,
+                    mean_smoothed_m=("smoothed_m", "mean"), worst_smoothed_m=("smoothed_m", "max"), mean_causal_m=("causal_m", "mean"),
+                    worst_causal_m=("causal_m", "max"), worst_loop_m=("smoothed_loop_m", "max"))
+
+
+def _runs_and_worst(df: pd.DataFrame, runs_title: str, worst_title: str, digits: int, **aggregates: tuple[str, str]) -> None:
+    """Print every run, then the runs grouped by scale and filter (`aggregates` as pandas' named aggregation)."""
+    print(f"\n## {runs_title}")
+    print(df.to_string(index=False, float_format=lambda v: f"{v:.{digits}f}"))
+    g = df.groupby(["scale", "filter"]).agg(**aggregates).reset_index()
+    print(f"\n## {worst_title}")
+    print(g.to_string(index=False, float_format=lambda v: f"{v:.{digits}f}"))
 
 
 def sim_loops(out: Path, n_jobs: int, filters: tuple[str, ...]) -> None:
@@ -120,14 +124,10 @@ def sim_loops(out: Path, n_jobs: int, filters: tuple[str, ...]) -> None:
         nan = float("nan")
         rows.append({**r["job"], "ate_m": t.get("rmse_m", nan), "aligned_m": t.get("aligned_rmse_m", nan),
                      "causal_m": t.get("causal_rmse_m", nan), **_common(r)})
-    df = pd.DataFrame(rows)
-    print("\n## sim_loops: ATE RMSE per run (m)")
-    print(df.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
-    g = df.groupby(["scale", "filter"]).agg(worst_ate_m=("ate_m", "max"), worst_aligned_m=("aligned_m", "max"),
-                                             mean_ate_m=("ate_m", "mean"), worst_causal_m=("causal_m", "max"),
-                                             filter_s=("filter_s", "mean")).reset_index()
-    print("\n## sim_loops: worst of dataset seeds 0-4 (budget: <= 0.10 m unaligned, <= 0.05 m aligned)")
-    print(g.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    _runs_and_worst(pd.DataFrame(rows), "sim_loops: ATE RMSE per run (m)",
+                    "sim_loops: worst of dataset seeds 0-4 (budget: <= 0.10 m unaligned, <= 0.05 m aligned)", 3,
+                    worst_ate_m=("ate_m", "max"), worst_aligned_m=("aligned_m", "max"), mean_ate_m=("ate_m", "mean"),
+                    worst_causal_m=("causal_m", "max"), filter_s=("filter_s", "mean"))
 
 
 def hospital(out: Path, filters: tuple[str, ...]) -> None:
@@ -142,6 +142,27 @@ def hospital(out: Path, filters: tuple[str, ...]) -> None:
                      "worst_window": c.get("contradiction_worst_window"), **_common(m)})
     print("\n## hospital (fr-clinic, 6,917 scans): graph budget <= 20 s, <= 400 MB; consistency p10 above the RBPF's")
     print(pd.DataFrame(rows).to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    maps = [(flt, out / f"hospital-{flt}" / "map.png") for flt in filters]
+    if all(path.is_file() for _, path in maps):
+        print(f"the maps side by side: {_side_by_side(maps, out / 'hospital-maps.png')}")
+
+
+def _side_by_side(maps: list[tuple[str, Path]], target: Path) -> Path:
+    """The runs' map images (name, map.png) in one figure, one panel each, written to `target`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(maps), figsize=(9 * len(maps), 6), squeeze=False)
+    for ax, (name, path) in zip(axes[0], maps):
+        ax.imshow(plt.imread(path), cmap="gray")
+        ax.set_title(f"filter={name}")
+        ax.set_axis_off()
+    fig.tight_layout()
+    fig.savefig(target, dpi=150)
+    plt.close(fig)
+    return target
 
 
 def timing(out: Path, filters: tuple[str, ...]) -> None:

@@ -63,13 +63,20 @@ def line_step(r, c, err, dr, dc, sr, sc, major_c):
 
 
 @numba.njit(cache=True, inline="always")
-def _add(lo, r, c, delta, lmin, lmax, thresh, flip):
-    old = lo[r, c]
+def _clamped_sum(old, delta, lmin, lmax):
+    """old + delta, clamped to [lmin, lmax]."""
     new = old + delta
     if new < lmin:
         new = lmin
     elif new > lmax:
         new = lmax
+    return new
+
+
+@numba.njit(cache=True, inline="always")
+def _add(lo, r, c, delta, lmin, lmax, thresh, flip):
+    old = lo[r, c]
+    new = _clamped_sum(old, delta, lmin, lmax)
     lo[r, c] = new
     if (old > thresh) != (new > thresh):
         # remember the bounding box of cells whose occupied/free state changed
@@ -105,11 +112,7 @@ def _add_noting(lo, r, c, delta, lmin, lmax, thresh, flips, n):
     """`_add`, appending the cell to `flips` (K, 2: row, col) when its occupied state changes
     (while there is room; `n` counts every change, so n > K says some were not kept)."""
     old = lo[r, c]
-    new = old + delta
-    if new < lmin:
-        new = lmin
-    elif new > lmax:
-        new = lmax
+    new = _clamped_sum(old, delta, lmin, lmax)
     lo[r, c] = new
     if (old > thresh) != (new > thresh):
         if n < flips.shape[0]:
