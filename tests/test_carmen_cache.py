@@ -112,18 +112,23 @@ def test_warnings_name_the_file_as_given(cache, tmp_path):
     assert moved_warnings and all(m.startswith(str(moved)) for _, m in moved_warnings)
 
 
-def test_a_damaged_entry_is_parsed_again_and_repaired(cache, tmp_path):
+def _cached_log(cache, tmp_path):
+    """A small log read once and cached: (its path, what it parses to, its first ranges file in the cache)."""
     path = write(tmp_path / "log.clf", SMALL_LOG)
     parsed, _ = load(path)
     load(path, cache=True)
     (entry,) = entries(cache)
-    victim = entry / "0.ranges.npy"
+    return path, parsed, entry / "0.ranges.npy"
+
+
+def test_a_damaged_entry_is_parsed_again_and_repaired(cache, tmp_path):
+    path, parsed, victim = _cached_log(cache, tmp_path)
     victim.write_bytes(victim.read_bytes()[:20])  # cut short
     seq, _ = load(path, cache=True)
     assert_identical(parsed, seq)
     seq, _ = load(path, cache=True)  # the entry was written again
     assert_identical(parsed, seq)
-    assert len((entry / "0.ranges.npy").read_bytes()) > 20
+    assert len(victim.read_bytes()) > 20
 
 
 def test_an_unwritable_cache_is_no_error(tmp_path, monkeypatch):
@@ -162,16 +167,13 @@ def test_an_entry_edited_on_disk_is_caught_said_once_and_parsed_again(cache, tmp
     """Issue 45: a cached file with one range changed (same size, still a valid .npy) was read
     back silently. Its checksum no longer matches: one warning naming it, the log is parsed
     again (the scans are the log's, not the edit) and the entry is written again."""
-    path = write(tmp_path / "log.clf", SMALL_LOG)
-    parsed, _ = load(path)
-    load(path, cache=True)
-    (entry,) = entries(cache)
-    victim = entry / "0.ranges.npy"
+    path, parsed, victim = _cached_log(cache, tmp_path)
     ranges = np.load(victim)
     edited = ranges.copy()
     edited.flat[2] += 1.0
+    size = victim.stat().st_size
     np.save(victim, edited)
-    assert victim.stat().st_size == (entry / "0.ranges.npy").stat().st_size
+    assert victim.stat().st_size == size
     seq, said = load(path, cache=True)
     assert_identical(parsed, seq)
     assert said == [(RuntimeWarning, f"{victim}: the cached copy changed since it was written (its checksum differs):"
@@ -181,11 +183,7 @@ def test_an_entry_edited_on_disk_is_caught_said_once_and_parsed_again(cache, tmp
 
 
 def test_an_entry_cut_short_warns_once(cache, tmp_path):
-    path = write(tmp_path / "log.clf", SMALL_LOG)
-    parsed, _ = load(path)
-    load(path, cache=True)
-    (entry,) = entries(cache)
-    victim = entry / "0.ranges.npy"
+    path, parsed, victim = _cached_log(cache, tmp_path)
     victim.write_bytes(victim.read_bytes()[:-8])  # the last two float32 ranges lost
     seq, said = load(path, cache=True)
     assert_identical(parsed, seq)
