@@ -309,9 +309,10 @@ class RbpfFilterConfig:
 @dataclass
 class GraphFilterConfig:
     """`filter=graph`: one trajectory, no particles. Local SLAM matches each processed scan
-    against the older of two active submaps; each new node is searched against finished
-    submaps by branch and bound; accepted loop closures and the local matches form a pose
-    graph optimised with GTSAM under a robust loss (slamlab.slam.graph)."""
+    against a map of everything mapped so far (`local_map`); the scans also go into submaps,
+    two active at once, and new nodes are searched against the finished ones by branch and
+    bound; accepted loop closures and the local matches form a pose graph optimised with
+    GTSAM under a robust loss (slamlab.slam.graph)."""
 
     GROUP: ClassVar[str] = "filter"
     _target_: str = "slamlab.slam.graph.GraphFilter"
