@@ -51,3 +51,25 @@ def test_a_graph_runs_report_has_the_section_and_other_runs_do_not(tmp_path):
     assert "3 candidates: 2 accepted, rejected: 1 ambiguous" in section.note
     # the table: accepted closures, the one that moved the robot most first
     assert [r[2] for r in section.rows] == ["0.50", "0.20"] and section.rows[1][5] == "across a corridor"
+
+
+def test_a_graph_runs_page_shows_no_particles(tmp_path):
+    """One trajectory, no particles: the page's title, cards and filter section say so instead
+    of drawing a flat N_eff of 1 and a best weight of 1 (a particle run keeps them)."""
+    from report_fixtures import make_run_dir
+
+    from slamlab.report.run_report import render_run_report
+
+    particle_run = make_run_dir(tmp_path / "rbpf")
+    graph_run = make_run_dir(tmp_path / "graph")
+    metrics = json.loads((graph_run / RunFile.METRICS).read_text())
+    metrics.update(filter="graph", particles=1, resample_count=0, neff_mean=1.0,
+                   graph={"nodes": 300, "submaps": 30, "searches": 100, "candidates": 3, "accepted": 2})
+    (graph_run / RunFile.METRICS).write_text(json.dumps(metrics))
+    page = render_run_report(load_run(graph_run))
+    assert "one trajectory" in page and "1 particle" not in page
+    assert 'alt="N_eff over time"' not in page and "mean N_eff" not in page and ">resamples<" not in page
+    assert 'alt="step time over time"' in page and "Filter over time" in page
+    other = render_run_report(load_run(particle_run))
+    assert 'alt="N_eff over time"' in other and "Particle filter over time" in other
+    assert "mean N_eff" in other and ">resamples<" in other

@@ -277,22 +277,27 @@ def neff_figure(steps: Table, particles: int | None, threshold: float | None) ->
 WARMUP_RATIO = 10.0
 
 
-def weight_and_time_plot(steps: Table) -> str:
-    return fig_to_data_uri(weight_and_time_figure(steps))
+def weight_and_time_plot(steps: Table, with_weight: bool = True) -> str:
+    return fig_to_data_uri(weight_and_time_figure(steps, with_weight))
 
 
-def weight_and_time_figure(steps: Table) -> Figure:
-    """Best particle weight and filter step time over time, stacked with a shared time axis.
+def weight_and_time_figure(steps: Table, with_weight: bool = True) -> Figure:
+    """Best particle weight and filter step time over time, stacked with a shared time axis
+    (the step time alone without `with_weight`: a filter of one trajectory has no weights).
     Step times on a log axis: the typical few-ms step would otherwise be a line at zero. The
     first step pays for compiling or loading the kernels (seconds): when it is WARMUP_RATIO
     times the others' median it is left out of the axis, the median and the percentile, and a
     note gives its time."""
-    fig, (a1, a2) = subplots(2, 1, figsize=(13.0, 4.6), sharex=True)
+    if with_weight:
+        fig, (a1, a2) = subplots(2, 1, figsize=(13.0, 4.6), sharex=True)
+    else:
+        fig, a2 = subplots(1, 1, figsize=(13.0, 2.6))
     t = step_times(steps)
-    if "best_weight" in steps:
-        a1.plot(t, np.asarray(steps["best_weight"], dtype=float), lw=0.8, color="#9467bd")
-    a1.set_ylabel("best weight")
-    a1.grid(alpha=0.3)
+    if with_weight:
+        if "best_weight" in steps:
+            a1.plot(t, np.asarray(steps["best_weight"], dtype=float), lw=0.8, color="#9467bd")
+        a1.set_ylabel("best weight")
+        a1.grid(alpha=0.3)
     if "step_time_s" in steps:
         st = np.asarray(steps["step_time_s"], dtype=float) * 1000.0
         warmup = st.size > 2 and st[0] > WARMUP_RATIO * float(np.median(st[1:]))

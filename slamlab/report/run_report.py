@@ -88,6 +88,8 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
         out.append(("filter", "none (dead reckoning)"))
     elif m.get("mode") == "predict":
         out.append(("filter", f"prediction only, {count_text(m.get('particles'), 'particle')}"))
+    elif run.one_trajectory:
+        out.append(("filter", f"{m.get('filter', 'graph')}, one trajectory"))
     elif "filter" in m:
         out.append(("filter", f"{m['filter']}, {count_text(m.get('particles'), 'particle')}"))
     traj = m.get("trajectory") if isinstance(m.get("trajectory"), dict) else {}
@@ -128,10 +130,11 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
                     f"{fmt_number(cons.get('contradiction_share'))} / {fmt_number(cons['contradiction_worst_window'])}"))
     elif "hit_fraction_mean" in cons:  # runs before the verdict (2026-11-29)
         out.append(("scan hits on map / wall conflicts", f"{fmt_number(cons['hit_fraction_mean'])} / {fmt_number(cons.get('conflict_fraction', float('nan')))}"))
+    particle_keys = ("resample_count", "neff_mean")  # nothing to say for one trajectory
     for key, label in (("runtime_s", "filter runtime (s)"), ("scans_per_s", "scans/s"),
                        ("realtime_factor", "× real time"), ("peak_memory_mb", "peak memory (MB)"),
                        ("resample_count", "resamples"), ("neff_mean", "mean N_eff")):
-        if key in m:
+        if key in m and not (run.one_trajectory and key in particle_keys):
             out.append((label, fmt_number(m[key])))
     for key, label in (("weighting_overflows", "weight overflows"), ("weighting_underflows", "weight underflows")):
         if m.get(key):
@@ -233,7 +236,9 @@ def render_run_report(run: RunDir) -> str:
     steps = run.load_steps()
     neff_img = weight_img = None
     neff_note = ""
-    if steps is not None and len(steps) > 1 and "neff" in steps:  # one step has no "over time"
+    if steps is not None and len(steps) > 1 and run.one_trajectory:  # no particles: the step time alone
+        weight_img = figures.weight_and_time_plot(steps, with_weight=False)
+    elif steps is not None and len(steps) > 1 and "neff" in steps:  # one step has no "over time"
         particles = run.particles
         thr, thr_src = neff_threshold(run.config, particles)
         neff_img = figures.neff_plot(steps, particles, thr)
@@ -277,7 +282,9 @@ def render_run_report(run: RunDir) -> str:
     title_bits = [f"Run {run.name}"]
     if run.dataset:
         title_bits.append(run.dataset)
-    if run.particles:
+    if run.one_trajectory:
+        title_bits.append("one trajectory")
+    elif run.particles:
         title_bits.append(count_text(run.particles, "particle"))
     if run.seed is not None:
         title_bits.append(f"seed {run.seed}")
@@ -295,6 +302,7 @@ def render_run_report(run: RunDir) -> str:
         neff_note=neff_note,
         single_step=steps is not None and len(steps) == 1,
         weight_img=weight_img,
+        one_trajectory=run.one_trajectory,
         consistency=consistency,
         extras=extra_sections(run),
         error_img=error_img,

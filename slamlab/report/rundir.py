@@ -95,6 +95,12 @@ class RunDir:
         return int(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
 
     @property
+    def one_trajectory(self) -> bool:
+        """A run of a filter that keeps one trajectory and no particles (`filter=graph`): no
+        N_eff, weights or resampling to show."""
+        return isinstance(self.metrics.get("graph"), dict)
+
+    @property
     def seed(self) -> Any:
         return self.metrics.get("seed", self.config.get("seed"))
 
