@@ -73,3 +73,13 @@ def test_a_graph_runs_page_shows_no_particles(tmp_path):
     other = render_run_report(load_run(particle_run))
     assert 'alt="N_eff over time"' in other and "Particle filter over time" in other
     assert "mean N_eff" in other and ">resamples<" in other
+
+
+def test_a_graph_run_has_no_particle_numbers_in_a_sweep_table():
+    from slamlab.report.columns import get_metric
+
+    graph = {"filter": "graph", "neff_mean": 1.0, "resample_count": 0, "runtime_s": 3.0, "graph": {"nodes": 10}}
+    particles = {"filter": "rbpf", "neff_mean": 23.5, "resample_count": 2, "runtime_s": 3.0}
+    assert np.isnan(get_metric(graph, "neff_mean")) and np.isnan(get_metric(graph, "resample_count"))
+    assert get_metric(graph, "runtime_s") == 3.0
+    assert get_metric(particles, "neff_mean") == 23.5 and get_metric(particles, "resample_count") == 2.0

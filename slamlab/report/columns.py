@@ -93,8 +93,16 @@ HEADLINE_GROUPS: tuple[tuple[str, ...], ...] = (
 )
 
 
+# What only a particle filter has: a run of one trajectory (`filter=graph`, a `graph` section in
+# its metrics) writes N_eff 1 and no resampling, which a table would show as if measured
+PARTICLE_KEYS = frozenset({"resample_count", "neff_mean", "neff_min"})
+
+
 def get_metric(metrics: dict[str, Any], key: str) -> float:
-    """A dotted key from a metrics dict as float (NaN when absent)."""
+    """A dotted key from a metrics dict as float (NaN when absent, and for the particle
+    filter's own keys on a run of one trajectory)."""
+    if key in PARTICLE_KEYS and isinstance(metrics.get("graph"), dict):
+        return float("nan")
     node: Any = metrics
     for part in key.split("."):
         if not isinstance(node, dict) or part not in node:
