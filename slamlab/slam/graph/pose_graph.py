@@ -214,16 +214,6 @@ class PoseGraph:
         q = np.einsum("li,li->l", d, np.linalg.solve(cov, d[..., None])[..., 0])
         return q > 1.0
 
-    def loop_residuals(self, loops: np.ndarray) -> tuple[FloatArray, FloatArray]:
-        """How far the current estimate is from each of `loops` (ids): (m, rad) arrays."""
-        if len(loops) == 0:
-            return np.zeros(0), np.zeros(0)
-        a = np.array([self.loops[j][0] for j in loops])
-        i = np.array([self.loops[j][1] for j in loops])
-        z = np.array([self.loops[j][2] for j in loops])
-        d = se2_between(z, se2_between(self._x[a], self._x[i]))
-        return np.hypot(d[:, 0], d[:, 1]), np.abs(wrap_angle(d[:, 2]))
-
     # ---- internals
     def _chain_factor(self, k: int, diagonal: bool = False) -> gtsam.BetweenFactorPose2:
         """The local edge into node k: its covariance, or (`diagonal`, for LAGO) its sigmas."""

@@ -3,26 +3,26 @@
     run_graph(sequence, components) -> SlamResult
 
 Per processed step k (the same steps as the particle filters, `steps.*`):
-1. local SLAM: the odometry increment predicts the local pose; the scan is matched against
-   the older active submap (the run's likelihood-field matcher with its motion prior) and
-   inserted into both active submaps (`submaps.Submaps`);
+1. local SLAM (`local.LocalSlam`): the odometry increment predicts the node and the run's
+   likelihood-field matcher (with its motion prior) places the scan on the online map, a map
+   of everything mapped so far (`filter.local_map=map`; or the older active submap, or the
+   RBPF); the scan also goes into the active submaps (`submaps.Submaps`);
 2. node k joins the pose graph after node k-1 by that matched motion;
-3. every `search_every` nodes, the scan is searched against the finished submaps in reach
-   (`loops.LoopSearch`); candidates go through the verifier (`verify.ClosureVerifier`), and
-   the accepted ones become robust edges of the graph;
-4. the graph is optimised when closures came in (at most every `optimise_every` nodes, at
-   once when the new closures disagree with the estimate by more than `trust_window_m`: the
-   first return of a long loop); closures the optimum leaves far off are dropped and the
-   graph optimised again;
-5. the online (causal) pose of step k is node k's estimate now; scans between steps are
-   matched against the older active submap as it is now (`steps.between=match`).
+3. scans between steps are matched against the online map as it is now (`steps.between=match`);
+4. every `search_every` nodes, the last `query_m` of scans are searched against the finished
+   submaps in reach (`loops.LoopSearch`); candidates go through the verifier
+   (`verify.ClosureVerifier`): one that confirms the estimate enters alone and the graph is
+   updated incrementally (ISAM2), a group asking for a correction is optimised in as a whole
+   (`_try_group`); closures the optimum leaves far off are dropped;
+5. when the graph puts node k `redraw_m` / `redraw_rad` away from the online map, that map is
+   drawn again from the graph; the online (causal) pose of step k is local SLAM's.
 At the end the graph is optimised once more: its estimate is the smoothed trajectory, and the
 final map is drawn by ray casting every node's scan from its optimised pose.
 
 How far a submap can be from where the estimate puts it grows with the path travelled
 between the node and the submap since they were last tied together: the shorter of the path
 itself and, through any accepted closure, the path from the closure's node plus the path
-between its anchor and the submap's (`_drift_paths`). That distance sets each submap's
+between its anchor and the submap's (`TiedSubmaps`). That distance sets each submap's
 search window (`loops.WindowPolicy`).
 """
 
@@ -348,10 +348,7 @@ def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[
         graph.restore(kept)
         log.debug("node %d: a group of %d closures refuted: %d of %d earlier closures would break", k, len(group), broken, len(before))
     else:
-        for _ in range(3):
-            if not _prune(graph, by_loop, s.prune_m, s.prune_rad):
-                break
-            graph.optimise_batch(from_lago=far)
+        _prune_and_reoptimise(graph, by_loop, s.prune_m, s.prune_rad, far)
         log.debug("node %d: a group of %d closures in (%s; %d earlier closures off)", k, len(group), "from LAGO" if far else "LM", broken)
     return time.perf_counter() - t0
 
@@ -375,8 +372,14 @@ def _optimise(graph: PoseGraph, by_loop: dict[int, LoopCandidate], prune_m: floa
     and a wrong closure it took in may have bent the start. Returns the seconds spent."""
     t0 = time.perf_counter()
     graph.optimise_batch(from_lago=from_lago)
+    _prune_and_reoptimise(graph, by_loop, prune_m, prune_rad, from_lago)
+    return time.perf_counter() - t0
+
+
+def _prune_and_reoptimise(graph: PoseGraph, by_loop: dict[int, LoopCandidate], prune_m: float, prune_rad: float, from_lago: bool) -> None:
+    """After an optimisation: drop the closures it leaves far off (`_prune`) and optimise
+    again while any were dropped, at most three times."""
     for _ in range(3):
         if not _prune(graph, by_loop, prune_m, prune_rad):
             break
         graph.optimise_batch(from_lago=from_lago)
-    return time.perf_counter() - t0
