@@ -341,7 +341,9 @@ class GraphFilterConfig:
     ambiguity_ratio: float = 0.9  # rejected when another pose (ambiguity_m / ambiguity_rad away) scores this much of the best
     ambiguity_m: float = 1.0
     ambiguity_rad: float = 0.35
-    wide_every: int = 5  # a wide window (over 5 m or 0.5 rad: tens of times the work) only from every k-th node
+    wide_every: int = 5  # a wide window (over 5 m or 0.5 rad: tens of times the work) only from every k-th node, and from
+    # every node while a correction waits for its group (a loop's return: the group forms within metres, not tens of metres;
+    # 2026-11-29, corridor probe worst smoothed 0.113 -> 0.085 m at 2x, 0.100 -> 0.097 at 3x; Intel and ACES unchanged)
     max_submaps_per_node: int = 2  # nearest finished submaps searched from one node
     # ---- verification: a closure that moves its node by more than trust_m / trust_rad needs a group of mutually
     # consistent ones

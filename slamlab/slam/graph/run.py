@@ -41,7 +41,7 @@ from slamlab.io.table import Table
 from slamlab.slam.graph import GraphFilter
 from slamlab.slam.graph.local import LocalSlam
 from slamlab.slam.graph.particles import ParticleTracker
-from slamlab.slam.graph.loops import ACCEPTED, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings, WindowPolicy
+from slamlab.slam.graph.loops import ACCEPTED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings, WindowPolicy
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.submaps import Submaps
 from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, correction_fits
@@ -108,6 +108,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
     tied = TiedSubmaps()
     by_loop: dict[int, LoopCandidate] = {}  # the candidate behind each closure of the graph
     first_scan = None
+    wide_until_m = -np.inf  # while a correction waits for its group, wide windows are searched from every node up to this path (m)
     t_loop = time.perf_counter()
     for k, si in enumerate(step_scans):
         t0 = time.perf_counter()
@@ -135,9 +136,14 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
         tracker.remember(k, float(path_m[k]), fine, s.query_m)
         if submaps.finished and k % s.search_every == 0 and len(pts.xy):
             query = tracker.query(ms.resolution_m) if s.query_m > 0 else fine
-            new = _search_loops(k, query, fine, pts.origin, submaps, graph, search, policy, tied.drift(k, path_m), s.wide_every)
+            wide_every = 1 if path_m[k] <= wide_until_m else s.wide_every
+            new = _search_loops(k, query, fine, pts.origin, submaps, graph, search, policy, tied.drift(k, path_m), wide_every)
             candidates.extend(new)
         accepted = verifier.offer(new, k, graph.poses, path_m, graph.active_ties)
+        if any(c.status == PENDING for c in new):
+            # a loop's return: one match asks for a correction and waits for others to agree (or not). Wide windows are
+            # searched from one node in `wide_every` to save time; from every node until the group forms or its wait ends
+            wide_until_m = path_m[k] + s.group_span_m
         opt_s = 0.0
         group = [c for c in accepted if c.in_group]
         for cand in accepted:

@@ -198,8 +198,13 @@ class ClosureVerifier:
             # a corridor match agrees with anything along the corridor: it cannot vouch for a
             # match that asks to move along it, so where the group has full matches only they count
             full = [c for c in group if not c.along_line] or group
-            spread = np.ptp([path_m[c.node] for c in full]) if full else 0.0
-            if len({c.node for c in full}) >= s.group_size and spread >= s.group_extent_m:
+            if not _enough(full, path_m, s):
+                # too few full matches: the corridor matches among them still vouch for each other across the
+                # corridor and in yaw, which is all they ask for (nothing along it): they enter as a group of their
+                # own, and the full matches wait for others like them
+                full = [c for c in group if c.along_line]
+                group = full
+            if _enough(full, path_m, s):
                 log.debug("node %d: a group of %d closures enters (nodes %s, submaps %s, moves %s m)", node, len(group),
                           [c.node for c in group], [c.submap for c in group], [round(float(np.hypot(*correction(c, poses)[:2])), 2) for c in group])
                 for c in group:
@@ -214,3 +219,11 @@ class ClosureVerifier:
         for c in self.pending:
             c.status = INCONSISTENT
         self.pending = []
+
+
+def _enough(group: list[LoopCandidate], path_m: FloatArray, s: VerifySettings) -> bool:
+    """Whether `group` has closures from at least `group_size` nodes spread over at least
+    `group_extent_m` of path."""
+    if not group:
+        return False
+    return len({c.node for c in group}) >= s.group_size and float(np.ptp([path_m[c.node] for c in group])) >= s.group_extent_m
