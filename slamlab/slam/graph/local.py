@@ -29,7 +29,7 @@ from slamlab.slam.graph.submaps import FinishedSubmap, Submaps
 from slamlab.slam.grid import MapSettings, OccupancyGrid
 from slamlab.slam.matcher import LikelihoodFieldMatcher, MatchPoints, voxel_filter
 from slamlab.slam.odometry_scale import learn_scales, scaled_start
-from slamlab.slam.scan import ScanBatch, ScanPoints, points_to_world
+from slamlab.slam.scan import ScanBatch, ScanPoints, place, points_to_world
 
 
 class LocalSlam:
@@ -123,10 +123,15 @@ class LocalSlam:
         metres' scans together see the corridor's irregular features (a junction behind, a door
         that is not on the beat) and rarely fit anywhere else."""
         here = self._recent[-1][1]
-        parts = [points_to_world(pts, se2_between(here, pose)) for _, pose, pts in self._recent if len(pts)]
-        if not parts:
+        kept = [(pose, pts) for _, pose, pts in self._recent if len(pts)]
+        if not kept:
             return np.zeros((0, 2))
-        return np.ascontiguousarray(voxel_filter(np.concatenate(parts), voxel_m))
+        # every scan's pose seen from the newest node's, then each point moved by its scan's (one pass, not one per scan)
+        rel = se2_between(here, np.array([pose for pose, _ in kept]))
+        per_point = np.repeat(np.arange(len(kept)), [len(pts) for _, pts in kept])
+        xy = place(np.concatenate([pts for _, pts in kept]), rel[per_point, 0], rel[per_point, 1],
+                   np.cos(rel[:, 2])[per_point], np.sin(rel[:, 2])[per_point])
+        return np.ascontiguousarray(voxel_filter(xy, voxel_m))
 
     def match_online(self, predicted: FloatArray, scans: ScanBatch | MatchPoints) -> FloatArray:
         """The poses (S, 3) where scans (none empty) fit the online map as it is now (the
