@@ -21,9 +21,9 @@ from slamlab.eval.relations import relation_errors
 from slamlab.geometry import se2_between, se2_compose
 from slamlab.slam.engine import run_slam
 from slamlab.slam.graph.branch_bound import NO_EXCLUSION, CorrelativeSearch, SearchGrid, SearchWindow, bnb_search, exhaustive_search, max_pool_levels, place_points
-from slamlab.slam.graph.loops import ACCEPTED, LoopCandidate
+from slamlab.slam.graph.loops import ACCEPTED, PENDING, LoopCandidate
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
-from slamlab.slam.graph.verify import VerifySettings, consistency_matrix, max_clique, tied_distances
+from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, consistency_matrix, max_clique, tied_distances
 from test_slam_engine import _cfg
 
 _spec = importlib.util.spec_from_file_location("sim_carmen", Path(__file__).resolve().parents[1] / "benchmarks" / "sim_carmen.py")
@@ -118,6 +118,29 @@ def test_closures_that_agree_form_a_clique_and_a_wrong_one_stays_out():
     ok = consistency_matrix(good + [wrong], poses, path, s)
     assert ok[:4, :4].all() and not ok[4, :4].any()
     assert max_clique(ok) == [0, 1, 2, 3]
+
+
+def test_corridor_matches_enter_as_their_own_group_when_too_few_full_matches_back_them():
+    # down a corridor along x the estimate is 0.5 m off across it; two full matches and three corridor matches
+    # (nothing pinned along x) all say so. Two full matches are too few to move the robot: the corridor matches
+    # enter alone (they ask only for what they pin), the full ones wait for a third
+    poses = np.column_stack([np.arange(100) * 0.5, np.zeros(100), np.zeros(100)])
+    path = np.arange(100) * 0.5
+    s = VerifySettings(0.1, 0.02, 30.0, 3, 2.0, 20.0, 0.3, 0.02, 0.05, 0.002)
+    def cands(full_nodes):
+        out = [_closure(n, 10, poses, (0.0, 0.5, 0.0)) for n in full_nodes]
+        for n in (86, 90, 94):
+            c = _closure(n, 10, poses, (0.0, 0.5, 0.0))
+            c.covariance, c.along_line = np.diag([100.0, 1e-3, 1e-4]), True
+            out.append(c)
+        return out
+    two = cands((80, 84))
+    entered = ClosureVerifier(s).offer(two, 94, poses, path)
+    assert [c.node for c in entered] == [86, 90, 94] and all(c.in_group for c in entered)
+    assert [c.status for c in two[:2]] == [PENDING, PENDING]
+    three = cands((78, 80, 84))
+    entered = ClosureVerifier(s).offer(three, 94, poses, path)
+    assert sorted(c.node for c in entered) == [78, 80, 84, 86, 90, 94]
 
 
 def test_a_closure_ties_two_far_places_of_the_path_together():
