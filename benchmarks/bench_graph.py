@@ -1,14 +1,16 @@
 """The loop-closure issue's table: `filter=course,rbpf,graph` side by side on every log the
 project has, with `+experiment=lidar2d` (CARMEN logs) or `+experiment=sim_loops`.
 
-    .venv/bin/python benchmarks/bench_graph.py [--only logs,probes,sim_loops,hospital,timing] [--filters course,rbpf,graph] [--steps 0.5,0.25]
+    .venv/bin/python benchmarks/bench_graph.py [--only logs,probes,sim_loops,hospital,timing] [--filters course,rbpf,graph] [--steps 0.5,0.25] [--jitter -0.02,0,0.02]
                                               [--jobs 2] [--out DIR] [--set KEY=VALUE ...]
 
 - logs: Intel and ACES at the preset's steps (0.5 m / 0.5 rad) and at half of them (`--steps`: any
   list, e.g. 0.15,0.25,0.35,0.5,0.75,1.0 for robustness to the step a user picks); mean
   relation error of the smoothed and of the causal (online) path (budget of the graph issue:
   Intel <= 0.022 m, ACES <= 0.037 m, both, the worst of seeds 0-4 where anything is random:
-  course and rbpf run seeds 0-4, graph has no randomness and runs once per step).
+  course and rbpf run seeds 0-4, graph has no randomness and runs once per step). `--jitter
+  -0.02,0,0.02` runs every step also 2 cm / 0.02 rad finer and coarser: other scans become steps,
+  the graph's nearest thing to another seed (its worst over those is its robustness).
 - probes: the FR079-like corridor probe (benchmarks/sim_carmen.py: the `loops` building at 2x
   and 3x, worlds 0-3; wheel odometry drifting tens of metres; written once into OUT/probes):
   relation error, smoothed and causal, and of the loop relations alone.
@@ -64,16 +66,18 @@ def _common(r: dict) -> dict:
     return {"filter_s": r.get("runtime_s", float("nan")), "closures": g.get("accepted"), "status": r.get("status", "?")}
 
 
-def logs(out: Path, n_jobs: int, filters: tuple[str, ...], steps: tuple[float, ...]) -> None:
+def logs(out: Path, n_jobs: int, filters: tuple[str, ...], steps: tuple[float, ...], jitters: tuple[float, ...] = (0.0,)) -> None:
     d = data_dir()
     jobs = []
     for log in BUDGET:
         for step in steps:
             for flt in filters:
                 for seed in _seeds(flt):
-                    args = ["+experiment=lidar2d", f"filter={flt}", f"dataset.path={d / 'carmen' / (log + '.clf.bz2')}", f"seed={seed}",
-                            f"steps.min_distance_m={step}", f"steps.min_angle_rad={step}"]
-                    jobs.append(({"log": log, "step": step, "filter": flt, "seed": seed}, args))
+                    for jit in jitters:  # the step thresholds moved a little: a deterministic filter's stand-in for seeds
+                        at = round(step + jit, 6)
+                        args = ["+experiment=lidar2d", f"filter={flt}", f"dataset.path={d / 'carmen' / (log + '.clf.bz2')}", f"seed={seed}",
+                                f"steps.min_distance_m={at}", f"steps.min_angle_rad={at}"]
+                        jobs.append(({"log": log, "step": step, "filter": flt, "seed": seed, "jitter": jit}, args))
     rows = [{**r["job"], **_rel(r), **_common(r), "broken": r.get("consistency", {}).get("verdict") == "likely broken"}
             for r in bench_filters._many(jobs, out / "logs", n_jobs)]
     df = pd.DataFrame(rows)
@@ -83,8 +87,8 @@ def logs(out: Path, n_jobs: int, filters: tuple[str, ...], steps: tuple[float, .
                                                   runs=("seed", "count"), flagged=("broken", "sum")).reset_index()
     g["budget_m"] = g["log"].map(BUDGET)
     g["pass"] = (g["worst_smoothed_m"] <= g["budget_m"]) & (g["worst_causal_m"] <= g["budget_m"])
-    print("\n## Intel and ACES: relation error (m), worst and mean over the seeds (graph: one run, nothing random); "
-          "flagged: runs whose map-consistency verdict is `likely broken`")
+    print("\n## Intel and ACES: relation error (m), worst and mean over the seeds (graph: nothing random, one run per step) "
+          f"and step jitters {list(jitters)}; flagged: runs whose map-consistency verdict is `likely broken`")
     print(g.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
 
 
@@ -186,6 +190,8 @@ def main() -> None:
     ap.add_argument("--steps", default=f"{PRESET_STEP},{PRESET_STEP / 2}",
                     help="logs: step thresholds (m and rad), comma list; the budget's are the preset's and half of them, "
                          "robustness: 0.15,0.25,0.35,0.5,0.75,1.0")
+    ap.add_argument("--jitter", default="0", help="logs: offsets (m and rad) added to each step, comma list, each a run of its own "
+                    "counted in the step's worst and mean: e.g. -0.02,0,0.02 (the graph has no seed; which scans become steps is its chance)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a config override added to every run")
     args = ap.parse_args()
     bench_filters.EXTRA_OVERRIDES.extend(args.set)
@@ -200,7 +206,7 @@ def main() -> None:
         if "hospital" in parts:
             hospital(out, filters)
         if "logs" in parts:
-            logs(out, args.jobs, filters, tuple(float(v) for v in args.steps.split(",")))
+            logs(out, args.jobs, filters, tuple(float(v) for v in args.steps.split(",")), tuple(float(v) for v in args.jitter.split(",")))
         if "probes" in parts:
             probes(out, args.jobs, filters)
         if "sim_loops" in parts:
