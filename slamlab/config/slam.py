@@ -325,6 +325,12 @@ class GraphFilterConfig:
     # 0.15 against 0.3 (bench_graph.py, 2026-11-29): ACES worst causal 0.0399 / 0.0382 m at 0.5 / 0.25 m steps (0.0417 /
     # 0.0517), corridor probe worst smoothed 0.113 / 0.100 m at 2x / 3x (0.140 / 0.110; worst causal 0.190 / 0.207 against
     # 0.182 / 0.156), sim_loops worst ATE 0.268 / 0.396 m at 1.5 / 2.0 (0.142 / 0.474); Intel unchanged (no redraw there)
+    local_yaw_half_width_rad: float = 0.2  # local SLAM: each node's match starts from a coarse grid this wide in yaw (rad; the
+    # matcher's own yaw_half_width_rad when that is wider; the scans between steps keep the matcher's): a step ends after
+    # steps.min_angle_rad of turning, and the odometry's yaw error grows with the turn. 0.2 against 0.1 (2026-11-29,
+    # bench_graph.py --steps 0.15,0.25,0.35,0.5,0.75,1.0 --jitter -0.02,0,0.02: 36 runs): Intel worst smoothed 0.309 -> 0.031 m
+    # (at 1.0 m steps a turn's match slipped 0.3 rad and the loop never closed), median 0.0208 -> 0.0198, worst causal 0.341 ->
+    # 0.068; ACES median 0.0398 -> 0.0398, worst 0.045 -> 0.049 (0.15 m steps); corridor probes unchanged
     submap_nodes: int = 20  # nodes (processed scans) inserted into each submap; a new one starts every half of it
     # ---- loop search (branch and bound on the finished submaps)
     search_resolution_m: float = 0.1  # cell of the search grid (rounded to a whole number of map cells)
@@ -387,7 +393,7 @@ class GraphFilterConfig:
         for name in ("search_resolution_m", "window_max_m", "ambiguity_m", "ambiguity_rad", "loop_sigma_m", "loop_sigma_rad", "trust_m", "trust_rad", "far_m", "redraw_m", "redraw_rad",
                      "local_sigma_m", "local_sigma_rad", "loss_scale", "prune_m", "prune_rad", "consistency_m", "consistency_rad"):
             require_positive(g, name, getattr(self, name))
-        for name in ("window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "query_m", "loop_min_path_m", "group_extent_m", "group_span_m",
+        for name in ("local_yaw_half_width_rad", "window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "query_m", "loop_min_path_m", "group_extent_m", "group_span_m",
                      "consistency_per_m", "consistency_rad_per_m", "local_sigma_per_m", "local_sigma_per_rad", "local_sigma_along_per_m", "local_slip_per_m"):
             require_nonnegative(g, name, getattr(self, name))
         for name in ("min_score", "min_refined_score", "ambiguity_ratio"):

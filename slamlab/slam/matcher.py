@@ -18,6 +18,7 @@ Adding a matcher: subclass `Matcher`, implement `match` (shared map, filter=cour
 
 from __future__ import annotations
 
+import copy
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
@@ -695,8 +696,21 @@ class LikelihoodFieldMatcher(Matcher):
         self.coarse_beam_step = int(coarse_beam_step)
         self.beam_step = int(beam_step)
         self.refine_levels = int(refine_levels)
+        self.xy_half_width_m = float(xy_half_width_m)
+        self.yaw_half_width_rad = float(yaw_half_width_rad)
         self.offsets = offset_grid(xy_half_width_m, xy_step_m, yaw_half_width_rad, yaw_step_rad)
         self.move_to_best = bool(move_to_best)
+
+    def with_yaw_window(self, yaw_half_width_rad: float) -> LikelihoodFieldMatcher:
+        """This matcher with its coarse grid spanning +-yaw_half_width_rad (rad) in the same
+        yaw steps; everything else (points, prior, refinement) the same. Its map reads are
+        counted on its own."""
+        out = copy.copy(self)
+        out.__dict__.pop("_shifts_by_res", None)
+        out.yaw_half_width_rad = float(yaw_half_width_rad)
+        out.offsets = offset_grid(self.xy_half_width_m, self.xy_step_m, out.yaw_half_width_rad, self.yaw_step_rad)
+        out.map_reads = 0
+        return out
 
     def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:
         assert grid.field is not None, "grid built without a likelihood field"

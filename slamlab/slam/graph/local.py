@@ -36,8 +36,9 @@ class LocalSlam:
     """The chain poses, the submaps and (local_map=map) the online map (see module doc)."""
 
     def __init__(self, matcher: LikelihoodFieldMatcher, settings: MapSettings, submaps: Submaps, local_map: str,
-                 start: FloatArray, scale_gain_per_m: float = 0.0) -> None:
+                 start: FloatArray, scale_gain_per_m: float = 0.0, step_matcher: LikelihoodFieldMatcher | None = None) -> None:
         self.matcher = matcher
+        self.step_matcher = step_matcher or matcher  # each node's own match (`step`): `filter.local_yaw_half_width_rad`
         self.scale_gain_per_m = float(scale_gain_per_m)  # `motion.scale_gain_per_m`: 0 = the odometry as it is
         self.scale = np.ones(1)  # the learnt odometry scale (`slam.odometry_scale`)
         self.settings = settings
@@ -65,7 +66,7 @@ class LocalSlam:
         return OccupancyGrid(self.settings, start_xy, self.matcher.field_sigma_m, self.matcher.field_radius_m)
 
     def _match(self, grid: OccupancyGrid, predicted: FloatArray, scan: ScanPoints) -> FloatArray:
-        return self.matcher.match_scans_on(grid, predicted.reshape(1, 3), ScanBatch.of([scan]))[0][0]
+        return self.step_matcher.match_scans_on(grid, predicted.reshape(1, 3), ScanBatch.of([scan]))[0][0]
 
     def step(self, odometry_increment: FloatArray, scan: ScanPoints) -> FloatArray:
         """The next node: the odometry increment (robot frame) predicts it and the scan is
