@@ -301,6 +301,26 @@ def test_neff_of_runs_of_very_different_lengths_is_drawn_against_the_share_of_ea
         assert t[0] == 0.0 and t[-1] == pytest.approx(100.0)
 
 
+def test_a_graph_run_is_left_out_of_the_neff_overlay_and_named_in_its_note(tmp_path: Path) -> None:
+    rbpf = make_run_dir(tmp_path / "rbpf", overrides=["particles=30"], n_steps=40)
+    graph = make_run_dir(tmp_path / "graph", overrides=["particles=30"], n_steps=40)
+    m = json.loads((graph / "metrics.json").read_text())
+    m["graph"] = {"nodes": 40, "accepted": 3}  # what a filter=graph run writes beside its flat N_eff of 1
+    (graph / "metrics.json").write_text(json.dumps(m))
+    runs = [load_run(rbpf), load_run(graph)]
+    from slamlab.report import sweep_report
+
+    captured = {}
+    real = sweep_report.figures.neff_overlay
+    sweep_report.figures.neff_overlay = lambda curves, ylabel, xlabel: captured.update(curves=curves) or real(curves, ylabel, xlabel)
+    try:
+        img, note = sweep_report._neff(runs, [0, 1], ["rbpf run", "graph run"], ["rbpf", "graph"])
+    finally:
+        sweep_report.figures.neff_overlay = real
+    assert img is not None and [c[0] for c in captured["curves"]] == ["rbpf run"]
+    assert "Not drawn: graph run (one trajectory" in note
+
+
 def test_the_ladder_sweep_ranks_no_step_against_another(tmp_path: Path) -> None:
     steps = ["ladder_first_scan", "ladder_dead_reckoning", "ladder_predict", "ladder_few_particles", "ladder_full"]
     root = tmp_path / "ladder"

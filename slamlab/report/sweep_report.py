@@ -565,6 +565,8 @@ def _neff(runs: Sequence[RunDir], ok_idx: Sequence[int], display: Sequence[str],
     of each run when their lengths differ by more than DURATION_RATIO, else time."""
     curves = []
     smooth_windows: list[int] = []
+    single = [i for i in ok_idx if runs[i].one_trajectory]  # filter=graph: its steps.csv holds a flat N_eff of 1, not a measurement
+    ok_idx = [i for i in ok_idx if not runs[i].one_trajectory]
     normalise = len({runs[i].particles for i in ok_idx}) > 1
     tables = {i: s for i in ok_idx if (s := _safe(f"steps of {labels[i]}", runs[i].load_steps)) is not None
               and "neff" in s and len(s)}
@@ -595,6 +597,9 @@ def _neff(runs: Sequence[RunDir], ok_idx: Sequence[int], display: Sequence[str],
         lo, hi = min(smooth_windows), max(smooth_windows)
         note += (f" Smoothed by a centred rolling mean over {lo if lo == hi else f'{lo}–{hi}'} steps"
                  " (each run's report shows the raw curve with its resampling events).")
+    if single:
+        note += (f" Not drawn: {', '.join(display[i] for i in single)}"
+                 " (one trajectory, no particles: nothing to weigh).")
     return img, note
 
 
