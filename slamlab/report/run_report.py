@@ -15,6 +15,7 @@ import numpy as np
 import yaml
 
 from slamlab.report import error_figures, figures, particle_sections
+from slamlab.report.columns import PARTICLE_KEYS
 from slamlab.report.consistency_section import consistency_section
 from slamlab.report.extra_sections import extra_sections
 from slamlab.report.ground_frames import ground_frames_section
@@ -130,11 +131,10 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
                     f"{fmt_number(cons.get('contradiction_share'))} / {fmt_number(cons['contradiction_worst_window'])}"))
     elif "hit_fraction_mean" in cons:  # runs before the verdict (2026-11-29)
         out.append(("scan hits on map / wall conflicts", f"{fmt_number(cons['hit_fraction_mean'])} / {fmt_number(cons.get('conflict_fraction', float('nan')))}"))
-    particle_keys = ("resample_count", "neff_mean")  # nothing to say for one trajectory
     for key, label in (("runtime_s", "filter runtime (s)"), ("scans_per_s", "scans/s"),
                        ("realtime_factor", "× real time"), ("peak_memory_mb", "peak memory (MB)"),
                        ("resample_count", "resamples"), ("neff_mean", "mean N_eff")):
-        if key in m and not (run.one_trajectory and key in particle_keys):
+        if key in m and not (run.one_trajectory and key in PARTICLE_KEYS):  # nothing to say for one trajectory
             out.append((label, fmt_number(m[key])))
     for key, label in (("weighting_overflows", "weight overflows"), ("weighting_underflows", "weight underflows")):
         if m.get(key):

@@ -202,8 +202,7 @@ class ClosureVerifier:
                 # too few full matches: the corridor matches among them still vouch for each other across the
                 # corridor and in yaw, which is all they ask for (nothing along it): they enter as a group of their
                 # own, and the full matches wait for others like them
-                full = [c for c in group if c.along_line]
-                group = full
+                group = full = [c for c in group if c.along_line]
             if _enough(full, path_m, s):
                 log.debug("node %d: a group of %d closures enters (nodes %s, submaps %s, moves %s m)", node, len(group),
                           [c.node for c in group], [c.submap for c in group], [round(float(np.hypot(*correction(c, poses)[:2])), 2) for c in group])
