@@ -319,7 +319,9 @@ class GraphFilterConfig:
     # ---- local SLAM
     local_map: str = "map"  # local SLAM: `map` (each scan matched against everything mapped so far, at the online poses;
     # redrawn after a large correction), `submap` (against the older active submap, as Cartographer) or `particles` (the
-    # RBPF, `particles` of them, with the run's motion, weighting and resampler; restarted after a large correction)
+    # RBPF, `particles` of them, with the run's motion, weighting and resampler; restarted after a large correction).
+    # `particles` measured worse than `map` (2026-11-29: sim_loops 2.0 ATE up to 2.17 m against 0.40, Intel causal 0.049
+    # against 0.018 m, 5-10x the time; benchmarks/RESULTS.md), kept as the "loop closure for the RBPF" experiment
     redraw_m: float = 0.15  # local_map=map: when the graph puts the robot this far (m) or redraw_rad from where the
     redraw_rad: float = 0.035  # local map has it, the map is drawn again from the graph (the online pose jumps to the graph's).
     # 0.15 against 0.3 (bench_graph.py, 2026-11-29): ACES worst causal 0.0399 / 0.0382 m at 0.5 / 0.25 m steps (0.0417 /
