@@ -3,7 +3,7 @@ runs, and maps broken on purpose. Prints one table row per case: how it was made
 known about it, the verdict, the place it names and whether that place overlaps the broken
 part.
 
-    .venv/bin/python benchmarks/bench_consistency.py --runs DIR [--make] [--only NAME,...]
+    .venv/bin/python benchmarks/bench_consistency.py --runs DIR [--make] [--only NAME]... (one case a flag, or names joined by commas)
 
 `--runs DIR` holds one run folder per source run (named as in SOURCES); `--make` runs the
 missing ones first (`slamlab ... hydra.run.dir=DIR/NAME`, ~45 min on 2 cores). Needs the
@@ -279,9 +279,14 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--runs", type=Path, required=True, help="folder of the source runs (one folder per SOURCES name)")
     p.add_argument("--make", action="store_true", help="run the missing source runs first")
-    p.add_argument("--only", default="", help="comma-separated case names")
+    p.add_argument("--only", action="append", default=[],
+                   help="a case's name (repeatable; several names may be given comma-separated when none has a comma)")
     args = p.parse_args(argv)
-    cases = [c for c in CASES if not args.only or c.name in args.only.split(",")]
+    known = {c.name for c in CASES}
+    wanted = {n.strip() for v in args.only for n in ([v] if v in known else v.split(","))}
+    if wanted - known:
+        p.error(f"no case named {', '.join(sorted(wanted - known))} (cases: {', '.join(c.name for c in CASES)})")
+    cases = [c for c in CASES if not wanted or c.name in wanted]
     if args.make:
         for name in dict.fromkeys(c.source for c in cases):
             make_run(args.runs, name)
