@@ -103,3 +103,27 @@ def test_a_field_started_late_equals_one_kept_from_the_start():
             assert np.array_equal(late.field, kept.field)
     assert late.grow_count > grown_at_start >= 1 and late.shape == kept.shape
     assert np.array_equal(late.log_odds, kept.log_odds) and np.array_equal(late.field, kept.field)
+
+
+def test_growing_keeps_every_cell_where_it_was_and_the_new_margins_empty():
+    """`ensure` past two sides at once: the old cells (log-odds and field) sit at the same world
+    place in the grown grid, and every new cell is 0, as np.pad's zero margins were."""
+    rng = np.random.default_rng(3)
+    g = OccupancyGrid(MapConfig(initial_size_m=10.0), (0.0, 0.0), 0.1, 0.3)
+    for _ in range(20):
+        g.insert(*_random_scan(rng, 1.0, 1.8))  # inside the 10 m grid: no growth yet
+    assert g.grow_count == 0
+    lo, field, origin = g.log_odds.copy(), g.field.copy(), g.origin.copy()
+    g.ensure(-7.0, -2.0, 1.0, 9.0)  # beyond the left and top edges
+    assert g.grow_count == 1
+    dc, dr = int(round((origin[0] - g.origin[0]) / g.res)), int(round((origin[1] - g.origin[1]) / g.res))
+    assert dc > 0 and dr == 0 and g.shape[0] > lo.shape[0]
+    assert np.array_equal(g.log_odds[:lo.shape[0], dc:dc + lo.shape[1]], lo)
+    margin = np.ones(g.shape, dtype=bool)
+    margin[:lo.shape[0], dc:dc + lo.shape[1]] = False
+    assert not g.log_odds[margin].any()
+    # the field: unchanged inside, and in the margins exactly what the walls near the old edges give
+    ref = np.zeros(g.shape, dtype=np.float32)
+    update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.kernel, 0, g.shape[0], 0, g.shape[1])
+    assert np.array_equal(g.field[:lo.shape[0], dc:dc + lo.shape[1]], field)
+    assert np.array_equal(g.field, ref)
