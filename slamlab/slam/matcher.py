@@ -706,7 +706,8 @@ class LikelihoodFieldMatcher(Matcher):
         yaw steps; everything else (points, prior, refinement) the same. Its map reads are
         counted on its own."""
         out = copy.copy(self)
-        out.__dict__.pop("_shifts_by_res", None)
+        for cache in ("_shifts_by_res", "_coarse_reads"):  # made from the offsets: a shallow copy would share them
+            out.__dict__.pop(cache, None)
         out.yaw_half_width_rad = float(yaw_half_width_rad)
         out.offsets = offset_grid(self.xy_half_width_m, self.xy_step_m, out.yaw_half_width_rad, self.yaw_step_rad)
         out.map_reads = 0
