@@ -127,3 +127,42 @@ def test_growing_keeps_every_cell_where_it_was_and_the_new_margins_empty():
     update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.kernel, 0, g.shape[0], 0, g.shape[1])
     assert np.array_equal(g.field[:lo.shape[0], dc:dc + lo.shape[1]], field)
     assert np.array_equal(g.field, ref)
+
+
+def test_a_large_grid_grows_as_np_pad_and_gives_the_old_memory_back_only_when_no_one_holds_it():
+    """A grid over 8 MB an array grows band by band, giving the old array's pages back as they
+    are copied (`heap.release_pages`; Linux). The values are np.pad's; an array someone else
+    still holds (a reader that kept `grid.field`) is copied whole and left as it was."""
+    rng = np.random.default_rng(5)
+    g = OccupancyGrid(MapConfig(initial_size_m=100.0), (0.0, 0.0), 0.1, 0.3)  # 2,000 x 2,000 cells: 16 MB an array
+    for _ in range(30):
+        g.insert(*_random_scan(rng, 40.0, 8.0))
+    lo, origin = g.log_odds.copy(), g.origin.copy()
+    held = g.field  # kept by "a reader": must survive the growth
+    held_copy = held.copy()
+    g.ensure(-60.0, -10.0, 10.0, 10.0)  # past the left edge
+    assert g.grow_count == 1
+    dc = int(round((origin[0] - g.origin[0]) / g.res))
+    assert np.array_equal(g.log_odds, np.pad(lo, ((0, 0), (dc, g.shape[1] - lo.shape[1] - dc))))
+    assert np.array_equal(held, held_copy)  # not given back
+    ref = np.zeros(g.shape, dtype=np.float32)
+    update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.kernel, 0, g.shape[0], 0, g.shape[1])
+    assert np.array_equal(g.field, ref)
+
+
+def test_growing_an_array_no_one_reads_again_gives_its_pages_back():
+    """`_grown(..., release_old=True)`: np.pad's values, and the old array's whole pages read as
+    zeros after (given back to the system) but for its last partial page."""
+    import sys
+
+    from slamlab.slam.grid import _grown
+
+    if not sys.platform.startswith("linux"):
+        return  # madvise(MADV_DONTNEED) is Linux's; elsewhere the copy is a plain one (checked above)
+    a = np.random.default_rng(6).random((3000, 1000)).astype(np.float32) + 1.0  # 12 MB, no zero
+    ref = np.pad(a, ((2, 3), (4, 5)))
+    out = _grown(a, 2, 3, 4, 5, release_old=True)
+    assert np.array_equal(out, ref)
+    zero = (a.reshape(-1) == 0)
+    assert zero.mean() > 0.99  # given back: all but the partial first and last pages
+    assert not zero[-1]  # the last partial page was not

@@ -10,11 +10,14 @@ where a scan changed which cells are occupied.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
 from slamlab.config.slam import MapConfig
+from slamlab.heap import release_pages
 from slamlab.slam.raycast import (
     field_radius_cells, gaussian_kernel, raise_field, raycast_update, raycast_update_noting, refresh_cells, update_field,
 )
@@ -26,16 +29,31 @@ from slamlab.slam.raycast import (
 MapSettings = MapConfig
 
 
-def _grown(a: np.ndarray, pad_b: int, pad_t: int, pad_l: int, pad_r: int) -> np.ndarray:
+RELEASE_BAND_BYTES = 4 << 20  # an array larger than twice this is copied in bands of about this many bytes ...
+
+
+def _grown(a: np.ndarray, pad_b: int, pad_t: int, pad_l: int, pad_r: int, release_old: bool = False) -> np.ndarray:
     """`a` with zero rows below / above and zero columns left / right: np.pad's result, but
     the new array comes zeroed from the allocator (fresh pages of a large array are mapped
     zero pages, resident only once written) and only the old cells are copied in, where
     np.pad writes every margin cell (a building's map grows hundreds of times: on the
     Freiburg hospital log the writes took ~0.9 s and made margins resident before any scan
-    reached them)."""
+    reached them).
+
+    `release_old`: `a` is not read again by anyone, so a large one is copied band by band and
+    each band's pages go back to the system once copied (`heap.release_pages`): the old and
+    the new array are not both resident at once. A grid grows its log-odds and then its field,
+    so otherwise three full arrays were resident at its largest growth (hospital log: 485 MB)."""
     H, W = a.shape
     out = np.zeros((H + pad_b + pad_t, W + pad_l + pad_r), dtype=a.dtype)
-    out[pad_b:pad_b + H, pad_l:pad_l + W] = a
+    if not (release_old and a.flags.c_contiguous and a.nbytes > 2 * RELEASE_BAND_BYTES):
+        out[pad_b:pad_b + H, pad_l:pad_l + W] = a
+        return out
+    rows = max(RELEASE_BAND_BYTES // a.strides[0], 1)
+    released = 0
+    for r in range(0, H, rows):
+        out[pad_b + r:pad_b + min(r + rows, H), pad_l:pad_l + W] = a[r:r + rows]
+        released = release_pages(a, released, min(r + rows, H) * a.strides[0])
     return out
 
 
@@ -92,12 +110,23 @@ class OccupancyGrid:
         pad_t = hi_r - (H - 2) + m if hi_r > H - 2 else 0
         if pad_l == pad_b == pad_r == pad_t == 0:
             return
-        self.log_odds = _grown(self.log_odds, pad_b, pad_t, pad_l, pad_r)
+        self.log_odds = self._grown_array("log_odds", pad_b, pad_t, pad_l, pad_r)
         if self.field is not None:
-            self.field = _grown(self.field, pad_b, pad_t, pad_l, pad_r)
+            self.field = self._grown_array("field", pad_b, pad_t, pad_l, pad_r)
             self._refresh_field_margins(pad_b, pad_l, H, W)
         self.origin = self.origin - np.array([pad_l, pad_b]) * self.res
         self.grow_count += 1
+
+    def _grown_array(self, name: str, pad_b: int, pad_t: int, pad_l: int, pad_r: int) -> np.ndarray:
+        """The grid's array `name` grown (`_grown`); its old memory given back as it is copied
+        when the grid held the only reference (every reader takes the grid's arrays afresh at
+        each call; one that kept an old array would keep it whole)."""
+        old = getattr(self, name)
+        setattr(self, name, None)
+        # references: `old` and getrefcount's argument; any more, and someone still reads it (asked on
+        # a line of its own: as an argument of the call below, the call's `old` is counted too)
+        sole = sys.getrefcount(old) == 2
+        return _grown(old, pad_b, pad_t, pad_l, pad_r, release_old=sole)
 
     def _refresh_field_margins(self, pad_b: int, pad_l: int, H: int, W: int) -> None:
         """After growing: walls near the old edge reach R cells into the new margin, which
@@ -197,3 +226,11 @@ class OccupancyGrid:
     def to_image(self) -> GridImage:
         """The log-odds grid as a float32 GridImage (a copy)."""
         return GridImage(data=self.log_odds.copy(), resolution_m=self.res, origin_xy=(float(self.origin[0]), float(self.origin[1])))
+
+    def take_image(self) -> GridImage:
+        """The log-odds grid as a float32 GridImage without a copy, for a grid that is done:
+        it gives its arrays away and cannot be used after (a building's map is ~160 MB, and
+        the copy doubled it at the end of every pose-graph run)."""
+        image = GridImage(data=self.log_odds, resolution_m=self.res, origin_xy=(float(self.origin[0]), float(self.origin[1])))
+        self.log_odds = self.field = None  # type: ignore[assignment]
+        return image
