@@ -54,4 +54,4 @@ def map_from_trajectory(
                 continue
             pose = poses[i]
             grid.insert(points_to_world(pts.origin.reshape(1, 2), pose)[0], points_to_world(pts.xy, pose))
-    return grid.to_image()
+    return grid.take_image()
