@@ -133,9 +133,7 @@ def prepare_map(m: LogOddsMap, max_px: int, trajectories: Sequence[Trajectory] =
     h, w = data.shape
     res = m.resolution_m
     ox, oy = m.origin_xy
-    known = np.abs(data) > 1e-6
-    rows = np.flatnonzero(known.any(axis=1))
-    cols = np.flatnonzero(known.any(axis=0))
+    rows, cols = _known_rows_cols(data)
     if rows.size and cols.size:
         r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
     else:
@@ -157,6 +155,21 @@ def prepare_map(m: LogOddsMap, max_px: int, trajectories: Sequence[Trajectory] =
     p_occ = 1.0 / (1.0 + np.exp(-np.clip(crop.astype(np.float64), -30, 30)))
     extent = (ox + c0 * res, ox + (c0 + crop.shape[1] * k) * res, oy + r0 * res, oy + (r0 + crop.shape[0] * k) * res)
     return MapView(image=1.0 - p_occ, extent=extent)
+
+
+KNOWN_BAND_ROWS = 256  # map rows checked at a time (a whole building's map is 160 MB of float32)
+
+
+def _known_rows_cols(data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rows and the columns of a log-odds grid holding an observed cell (|log-odds| >
+    1e-6), checked band by band (the whole grid's |.| and mask would be 200 MB on a building)."""
+    rows = np.zeros(data.shape[0], dtype=bool)
+    cols = np.zeros(data.shape[1], dtype=bool)
+    for r in range(0, data.shape[0], KNOWN_BAND_ROWS):
+        known = np.abs(data[r:r + KNOWN_BAND_ROWS]) > 1e-6
+        rows[r:r + KNOWN_BAND_ROWS] = known.any(axis=1)
+        cols |= known.any(axis=0)
+    return np.flatnonzero(rows), np.flatnonzero(cols)
 
 
 def draw_map(ax, view: MapView | None) -> None:
