@@ -29,7 +29,8 @@ def occupancy_probability(log_odds: np.ndarray) -> np.ndarray:
     return 1.0 / (1.0 + np.exp(-np.asarray(log_odds, dtype=np.float64)))
 
 
-BAND_ROWS = 256  # map rows converted at a time: float64 temporaries of a whole building's map are GBs
+BAND_ROWS = 64  # map rows converted at a time: float64 temporaries of a whole building's map are GBs (256 rows
+# of the Freiburg hospital's map: ~50 MB of them at once in its files phase)
 
 
 def map_image(log_odds: np.ndarray) -> np.ndarray:
@@ -86,7 +87,10 @@ def _write_map_raw_and_ros(run_dir: Path, grid: GridImage) -> None:
     )
     img = map_image(grid.data)
     h, w = img.shape
-    write_bytes(run_dir / RunFile.MAP_PGM, f"P5\n{w} {h}\n255\n".encode("ascii") + img.tobytes())
+    with atomic_path(run_dir / RunFile.MAP_PGM) as tmp, open(tmp, "wb") as f:
+        f.write(f"P5\n{w} {h}\n255\n".encode("ascii"))
+        for r in range(0, h, BAND_ROWS):  # the flipped rows a band at a time (not two whole copies of the image)
+            f.write(np.ascontiguousarray(img[r:r + BAND_ROWS]).data)
     ox, oy = grid.origin_xy
     write_text(
         run_dir / RunFile.MAP_YAML,
