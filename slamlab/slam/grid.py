@@ -19,7 +19,7 @@ from slamlab.geometry import FloatArray
 from slamlab.config.slam import MapConfig
 from slamlab.heap import release_pages
 from slamlab.slam.raycast import (
-    field_radius_cells, gaussian_kernel, raise_field, raycast_update, raycast_update_noting, refresh_cells, update_field,
+    copy_nonzero, field_radius_cells, gaussian_kernel, raise_field, raycast_update, raycast_update_noting, refresh_cells, update_field,
 )
 
 # The `map/` config group's schema is the settings object the grid reads: resolution_m,
@@ -29,16 +29,16 @@ from slamlab.slam.raycast import (
 MapSettings = MapConfig
 
 
-RELEASE_BAND_BYTES = 4 << 20  # an array larger than twice this is copied in bands of about this many bytes ...
+RELEASE_BAND_BYTES = 4 << 20  # `_grown` gives an old array over twice this size back in bands of about this size
 
 
 def _grown(a: np.ndarray, pad_b: int, pad_t: int, pad_l: int, pad_r: int, release_old: bool = False) -> np.ndarray:
     """`a` with zero rows below / above and zero columns left / right: np.pad's result, but
     the new array comes zeroed from the allocator (fresh pages of a large array are mapped
-    zero pages, resident only once written) and only the old cells are copied in, where
-    np.pad writes every margin cell (a building's map grows hundreds of times: on the
-    Freiburg hospital log the writes took ~0.9 s and made margins resident before any scan
-    reached them).
+    zero pages, resident only once written) and only the old non-zero cells are copied in
+    (`copy_nonzero`, on the bits: -0.0 too), where np.pad writes every cell (a building's map
+    grows hundreds of times: on the Freiburg hospital log the writes took ~0.9 s and made
+    margins, and the unmapped space around the building, resident before any scan reached them).
 
     `release_old`: `a` is not read again by anyone, so a large one is copied band by band and
     each band's pages go back to the system once copied (`heap.release_pages`): the old and
@@ -47,14 +47,19 @@ def _grown(a: np.ndarray, pad_b: int, pad_t: int, pad_l: int, pad_r: int, releas
     H, W = a.shape
     out = np.zeros((H + pad_b + pad_t, W + pad_l + pad_r), dtype=a.dtype)
     if not (release_old and a.flags.c_contiguous and a.nbytes > 2 * RELEASE_BAND_BYTES):
-        out[pad_b:pad_b + H, pad_l:pad_l + W] = a
+        copy_nonzero(_bits(a), _bits(out), pad_b, pad_l)
         return out
     rows = max(RELEASE_BAND_BYTES // a.strides[0], 1)
     released = 0
     for r in range(0, H, rows):
-        out[pad_b + r:pad_b + min(r + rows, H), pad_l:pad_l + W] = a[r:r + rows]
+        copy_nonzero(_bits(a[r:r + rows]), _bits(out), pad_b + r, pad_l)
         released = release_pages(a, released, min(r + rows, H) * a.strides[0])
     return out
+
+
+def _bits(a: np.ndarray) -> np.ndarray:
+    """The array's values as unsigned integers of the same size (a view)."""
+    return a.view(f"u{a.dtype.itemsize}")
 
 
 class OccupancyGrid:

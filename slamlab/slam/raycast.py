@@ -178,12 +178,15 @@ def update_field(lo, field, thresh, kernel, r0, r1, c0, c1):
     """Recompute the likelihood field `field` (float32 [H, W]) in rows [r0, r1), cols
     [c0, c1): each cell gets the max of `kernel` (float32 [2R+1, 2R+1], e.g. a Gaussian of
     the distance) over occupied cells (`lo > thresh`) within R cells. Cells outside the box
-    are unchanged, so a caller recomputes only where the occupancy changed (plus R)."""
+    are unchanged, so a caller recomputes only where the occupancy changed (plus R).
+    A cell already 0 is not written: a zero page of a building's map (far from any wall) then
+    stays a page the system never backs, where a write would make it resident."""
     H, W = lo.shape
     R = kernel.shape[0] // 2
     for r in range(r0, r1):
         for c in range(c0, c1):
-            field[r, c] = 0.0
+            if field[r, c] != 0.0:
+                field[r, c] = 0.0
     for r in range(max(r0 - R, 0), min(r1 + R, H)):
         for c in range(max(c0 - R, 0), min(c1 + R, W)):
             if lo[r, c] > thresh:
@@ -192,6 +195,18 @@ def update_field(lo, field, thresh, kernel, r0, r1, c0, c1):
                         v = kernel[rr - r + R, cc - c + R]
                         if v > field[rr, cc]:
                             field[rr, cc] = v
+
+
+@numba.njit(cache=True)
+def copy_nonzero(src, dst, r0, c0):
+    """dst[r0 + r, c0 + c] = src[r, c] wherever src[r, c] != 0, for a zeroed `dst` (a grown
+    grid): the same array as a plain copy, but a page of `dst` where src holds only zeros
+    (unmapped space around a building) is never written, so the system never backs it."""
+    for r in range(src.shape[0]):
+        for c in range(src.shape[1]):
+            v = src[r, c]
+            if v != 0:
+                dst[r0 + r, c0 + c] = v
 
 
 @numba.njit(cache=True, inline="always")
