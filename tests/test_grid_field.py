@@ -129,10 +129,15 @@ def test_growing_keeps_every_cell_where_it_was_and_the_new_margins_empty():
     assert np.array_equal(g.field, ref)
 
 
-def test_a_large_grid_grows_as_np_pad_and_gives_the_old_memory_back_only_when_no_one_holds_it():
+def test_a_large_grid_grows_as_np_pad_and_gives_the_old_memory_back_only_when_no_one_holds_it(monkeypatch):
     """A grid over 8 MB an array grows band by band, giving the old array's pages back as they
     are copied (`heap.release_pages`; Linux). The values are np.pad's; an array someone else
     still holds (a reader that kept `grid.field`) is copied whole and left as it was."""
+    import slamlab.slam.grid as grid_module
+
+    released = []
+    real = grid_module.release_pages
+    monkeypatch.setattr(grid_module, "release_pages", lambda a, start, stop: released.append(a.shape) or real(a, start, stop))
     rng = np.random.default_rng(5)
     g = OccupancyGrid(MapConfig(initial_size_m=100.0), (0.0, 0.0), 0.1, 0.3)  # 2,000 x 2,000 cells: 16 MB an array
     for _ in range(30):
@@ -145,6 +150,7 @@ def test_a_large_grid_grows_as_np_pad_and_gives_the_old_memory_back_only_when_no
     dc = int(round((origin[0] - g.origin[0]) / g.res))
     assert np.array_equal(g.log_odds, np.pad(lo, ((0, 0), (dc, g.shape[1] - lo.shape[1] - dc))))
     assert np.array_equal(held, held_copy)  # not given back
+    assert released and set(released) == {lo.shape}  # the log-odds (no one else held it) was
     ref = np.zeros(g.shape, dtype=np.float32)
     update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.kernel, 0, g.shape[0], 0, g.shape[1])
     assert np.array_equal(g.field, ref)

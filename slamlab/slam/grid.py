@@ -29,37 +29,55 @@ from slamlab.slam.raycast import (
 MapSettings = MapConfig
 
 
-RELEASE_BAND_BYTES = 4 << 20  # `_grown` gives an old array over twice this size back in bands of about this size
+RELEASE_BAND_BYTES = 4 << 20  # `_copy_into` gives an old array over twice this size back in bands of about this size
 
 
 def _grown(a: np.ndarray, pad_b: int, pad_t: int, pad_l: int, pad_r: int, release_old: bool = False) -> np.ndarray:
-    """`a` with zero rows below / above and zero columns left / right: np.pad's result, but
-    the new array comes zeroed from the allocator (fresh pages of a large array are mapped
-    zero pages, resident only once written) and only the old non-zero cells are copied in
-    (`copy_nonzero`, on the bits: -0.0 too), where np.pad writes every cell (a building's map
-    grows hundreds of times: on the Freiburg hospital log the writes took ~0.9 s and made
-    margins, and the unmapped space around the building, resident before any scan reached them).
-
-    `release_old`: `a` is not read again by anyone, so a large one is copied band by band and
-    each band's pages go back to the system once copied (`heap.release_pages`): the old and
-    the new array are not both resident at once. A grid grows its log-odds and then its field,
-    so otherwise three full arrays were resident at its largest growth (hospital log: 485 MB)."""
-    H, W = a.shape
-    out = np.zeros((H + pad_b + pad_t, W + pad_l + pad_r), dtype=a.dtype)
-    if not (release_old and a.flags.c_contiguous and a.nbytes > 2 * RELEASE_BAND_BYTES):
-        copy_nonzero(_bits(a), _bits(out), pad_b, pad_l)
-        return out
-    rows = max(RELEASE_BAND_BYTES // a.strides[0], 1)
-    released = 0
-    for r in range(0, H, rows):
-        copy_nonzero(_bits(a[r:r + rows]), _bits(out), pad_b + r, pad_l)
-        released = release_pages(a, released, min(r + rows, H) * a.strides[0])
+    """`a` with zero rows below / above and zero columns left / right: np.pad's result (see
+    `_copy_into`; `release_old` as there)."""
+    out = np.zeros((a.shape[0] + pad_b + pad_t, a.shape[1] + pad_l + pad_r), dtype=a.dtype)
+    _copy_into(a, out, pad_b, pad_l, release_old)
     return out
 
 
-def _bits(a: np.ndarray) -> np.ndarray:
-    """The array's values as unsigned integers of the same size (a view)."""
-    return a.view(f"u{a.dtype.itemsize}")
+def _copy_into(a: np.ndarray, out: np.ndarray, r0: int, c0: int, release_old: bool = False) -> None:
+    """`a` copied into the zeroed, larger `out` at rows r0.., cols c0..: np.pad's result when
+    `out` comes zeroed from the allocator (fresh pages of a large array are mapped zero pages,
+    resident only once written). Only `a`'s non-zero cells are written (`copy_nonzero`, on
+    the bits: -0.0 too), where np.pad writes every cell: a building's map grows hundreds of
+    times (on the Freiburg hospital log the writes took ~0.9 s), and the unmapped space around
+    the building then never becomes resident.
+
+    `release_old`: `a` owns its memory and nobody reads it again, so a large one is copied
+    band by band and each band's pages go back to the system once copied
+    (`heap.release_pages`): the old and the new array are not both resident at once. A grid
+    grows its log-odds and then its field, so otherwise three full arrays were resident at its
+    largest growth (hospital log: 485 MB)."""
+    if a.dtype.itemsize not in (1, 2, 4, 8):  # no unsigned integer of its size to copy the bits as
+        out[r0:r0 + a.shape[0], c0:c0 + a.shape[1]] = a
+        return
+    bits = f"u{a.dtype.itemsize}"
+    dst = out.view(bits)
+    release = release_old and a.flags.c_contiguous and a.flags.owndata and a.base is None and a.nbytes > 2 * RELEASE_BAND_BYTES
+    if not release:
+        copy_nonzero(a.view(bits), dst, r0, c0)
+        return
+    H = a.shape[0]
+    rows = max(RELEASE_BAND_BYTES // a.strides[0], 1)
+    released = 0
+    for r in range(0, H, rows):
+        copy_nonzero(a[r:r + rows].view(bits), dst, r0 + r, c0)
+        released = release_pages(a, released, min(min(r + rows, H) * a.strides[0], a.nbytes))
+
+
+def _sole_reference_count() -> int:
+    """What `sys.getrefcount` says of an object only one local variable holds, on this Python
+    (2 up to 3.13; 3.14 reads locals without a new reference, and says 1)."""
+    only_here = object()
+    return sys.getrefcount(only_here)
+
+
+SOLE_REFERENCE = _sole_reference_count()
 
 
 class OccupancyGrid:
@@ -127,11 +145,14 @@ class OccupancyGrid:
         when the grid held the only reference (every reader takes the grid's arrays afresh at
         each call; one that kept an old array would keep it whole)."""
         old = getattr(self, name)
+        # allocated first: if this fails (the run's largest allocation), the grid keeps its array
+        out = np.zeros((old.shape[0] + pad_b + pad_t, old.shape[1] + pad_l + pad_r), dtype=old.dtype)
         setattr(self, name, None)
-        # references: `old` and getrefcount's argument; any more, and someone still reads it (asked on
-        # a line of its own: as an argument of the call below, the call's `old` is counted too)
-        sole = sys.getrefcount(old) == 2
-        return _grown(old, pad_b, pad_t, pad_l, pad_r, release_old=sole)
+        # held by `old` alone? (asked on a line of its own: as an argument of the call below, the
+        # call's own reference would be counted too)
+        sole = sys.getrefcount(old) == SOLE_REFERENCE
+        _copy_into(old, out, pad_b, pad_l, release_old=sole)
+        return out
 
     def _refresh_field_margins(self, pad_b: int, pad_l: int, H: int, W: int) -> None:
         """After growing: walls near the old edge reach R cells into the new margin, which
