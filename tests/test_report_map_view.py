@@ -1,0 +1,38 @@
+"""The report's map view (`figures.prepare_map`) crops a log-odds grid to its observed cells and
+reduces it by blocks. A building's map is 160 MB of float32, so the observed rows and columns are
+found band by band: the crop must be the one a whole-grid mask gives, also when the observed
+cells sit across band edges."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slamlab.report import figures
+from slamlab.report.rundir import LogOddsMap
+
+
+def _whole_grid_crop(data: np.ndarray) -> tuple[int, int, int, int]:
+    known = np.abs(data) > 1e-6
+    rows, cols = np.flatnonzero(known.any(axis=1)), np.flatnonzero(known.any(axis=0))
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+
+
+def test_the_observed_rows_and_columns_found_band_by_band_are_the_whole_masks():
+    rng = np.random.default_rng(2)
+    band = figures.KNOWN_BAND_ROWS
+    data = np.zeros((3 * band + 17, 300), dtype=np.float32)
+    data[band - 3:2 * band + 5, 40:260] = rng.normal(0.0, 2.0, (band + 8, 220)).astype(np.float32)
+    data[band - 3, 40] = np.float32(1e-6)  # not observed: |v| must exceed 1e-6
+    data[3 * band + 10, 290] = -0.4  # one lone observed cell in the last, partial band
+    rows, cols = figures._known_rows_cols(data)
+    known = np.abs(data) > 1e-6
+    assert np.array_equal(rows, np.flatnonzero(known.any(axis=1)))
+    assert np.array_equal(cols, np.flatnonzero(known.any(axis=0)))
+    # and the view: the crop (plus the 1 m margin) reduced by blocks, as from the whole mask
+    view = figures.prepare_map(LogOddsMap(data=data, resolution_m=0.05, origin_xy=(-2.0, 3.0)), max_px=100)
+    r0, r1, c0, c1 = _whole_grid_crop(data)
+    pad = 20  # 1 m at 0.05 m
+    r0, c0, r1, c1 = max(r0 - pad, 0), max(c0 - pad, 0), min(r1 + pad, data.shape[0]), min(c1 + pad, data.shape[1])
+    assert view.extent[0] == -2.0 + c0 * 0.05 and view.extent[2] == 3.0 + r0 * 0.05
+    k = int(np.ceil(max(r1 - r0, c1 - c0) / 100))
+    assert view.image.shape == (-(-(r1 - r0) // k), -(-(c1 - c0) // k))
