@@ -32,14 +32,6 @@ MapSettings = MapConfig
 RELEASE_BAND_BYTES = 4 << 20  # `_copy_into` gives an old array over twice this size back in bands of about this size
 
 
-def _grown(a: np.ndarray, pad_b: int, pad_t: int, pad_l: int, pad_r: int, release_old: bool = False) -> np.ndarray:
-    """`a` with zero rows below / above and zero columns left / right: np.pad's result (see
-    `_copy_into`; `release_old` as there)."""
-    out = np.zeros((a.shape[0] + pad_b + pad_t, a.shape[1] + pad_l + pad_r), dtype=a.dtype)
-    _copy_into(a, out, pad_b, pad_l, release_old)
-    return out
-
-
 def _copy_into(a: np.ndarray, out: np.ndarray, r0: int, c0: int, release_old: bool = False) -> None:
     """`a` copied into the zeroed, larger `out` at rows r0.., cols c0..: np.pad's result when
     `out` comes zeroed from the allocator (fresh pages of a large array are mapped zero pages,
@@ -141,7 +133,7 @@ class OccupancyGrid:
         self.grow_count += 1
 
     def _grown_array(self, name: str, pad_b: int, pad_t: int, pad_l: int, pad_r: int) -> np.ndarray:
-        """The grid's array `name` grown (`_grown`); its old memory given back as it is copied
+        """The grid's array `name` grown (`_copy_into` a larger zeroed one); its old memory given back as it is copied
         when the grid held the only reference (every reader takes the grid's arrays afresh at
         each call; one that kept an old array would keep it whole)."""
         old = getattr(self, name)
