@@ -133,9 +133,10 @@ class OccupancyGrid:
         self.grow_count += 1
 
     def _grown_array(self, name: str, pad_b: int, pad_t: int, pad_l: int, pad_r: int) -> np.ndarray:
-        """The grid's array `name` grown (`_copy_into` a larger zeroed one); its old memory given back as it is copied
-        when the grid held the only reference (every reader takes the grid's arrays afresh at
-        each call; one that kept an old array would keep it whole)."""
+        """The grid's array `name` grown (copied into a larger zeroed one, `_copy_into`); its old
+        memory given back as it is copied when the grid held the only reference (every reader
+        takes the grid's arrays afresh at each call; one that kept an old array would keep it
+        whole)."""
         old = getattr(self, name)
         # allocated first: if this fails (the run's largest allocation), the grid keeps its array
         out = np.zeros((old.shape[0] + pad_b + pad_t, old.shape[1] + pad_l + pad_r), dtype=old.dtype)
