@@ -6,6 +6,7 @@ File names and formats are a contract (docs/RUN_DIRECTORY.md).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -33,15 +34,18 @@ BAND_ROWS = 64  # map rows converted at a time: float64 temporaries of a whole b
 # of the Freiburg hospital's map: ~50 MB of them at once in its files phase)
 
 
-def map_image(log_odds: np.ndarray) -> np.ndarray:
-    """uint8 image in map_server colours, top row = highest y: 0 occupied, 254 free, 205 unknown."""
-    img = np.full(log_odds.shape, 205, dtype=np.uint8)
-    for r in range(0, log_odds.shape[0], BAND_ROWS):
-        p = occupancy_probability(log_odds[r:r + BAND_ROWS])
-        band = img[r:r + BAND_ROWS]
+def map_image_bands(log_odds: np.ndarray) -> Iterator[np.ndarray]:
+    """The uint8 image in map_server colours (0 occupied, 254 free, 205 unknown), top row =
+    highest y, a band of `BAND_ROWS` rows at a time from the top: map.pgm's pixel rows in file
+    order without the whole image (41 MB on a building's map) in memory."""
+    h = log_odds.shape[0]
+    for hi in range(h, 0, -BAND_ROWS):
+        lo = max(hi - BAND_ROWS, 0)
+        p = occupancy_probability(log_odds[lo:hi])
+        band = np.full(p.shape, 205, dtype=np.uint8)
         band[p > OCCUPIED_THRESH] = 0
         band[p < FREE_THRESH] = 254
-    return np.flipud(img)
+        yield np.flipud(band)
 
 
 def map_png_rgba(log_odds: np.ndarray) -> np.ndarray:
@@ -85,12 +89,11 @@ def _write_map_raw_and_ros(run_dir: Path, grid: GridImage) -> None:
         resolution_m=np.float64(grid.resolution_m),
         origin_xy=np.asarray(grid.origin_xy, dtype=np.float64),
     )
-    img = map_image(grid.data)
-    h, w = img.shape
+    h, w = grid.data.shape
     with atomic_path(run_dir / RunFile.MAP_PGM) as tmp, open(tmp, "wb") as f:
         f.write(f"P5\n{w} {h}\n255\n".encode("ascii"))
-        for r in range(0, h, BAND_ROWS):  # the flipped rows a band at a time (not two whole copies of the image)
-            f.write(np.ascontiguousarray(img[r:r + BAND_ROWS]).data)
+        for band in map_image_bands(grid.data):  # a band of rows at a time, not the whole image
+            f.write(np.ascontiguousarray(band).data)
     ox, oy = grid.origin_xy
     write_text(
         run_dir / RunFile.MAP_YAML,
