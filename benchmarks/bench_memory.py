@@ -436,7 +436,8 @@ def print_tables(results: dict[str, dict]) -> None:
         hold = r.get("holders")
         if not hold:
             continue
-        print(f"\nTop holders of {name} by phase (memray, MB allocated in the phase: live at its heap peak | still live at its end):")
+        print(f"\nTop holders of {name} by phase (memray, MB allocated in the phase: live at its heap peak | still live at its end;"
+              " allocated is not resident: pages never written, or given back while an array is copied, count here, not in RSS):")
         for phase in PHASES:
             h = hold.get(phase)
             if h is None:
