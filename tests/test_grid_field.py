@@ -170,6 +170,9 @@ def test_growing_an_array_no_one_reads_again_gives_its_pages_back():
     out = np.zeros((3005, 1009), dtype=np.float32)
     _copy_into(a, out, 2, 4, release_old=True)
     assert np.array_equal(out, ref)
+    import mmap
+
+    end_in_partial_page = (a.ctypes.data + a.nbytes) % mmap.PAGESIZE != 0
     zero = (a.reshape(-1) == 0)
     assert zero.mean() > 0.99  # given back: all but the partial first and last pages
-    assert not zero[-1]  # the last partial page was not
+    assert zero[-1] != end_in_partial_page  # a last partial page is kept (its other bytes may be someone else's)
