@@ -45,21 +45,16 @@ def _copy_into(a: np.ndarray, out: np.ndarray, r0: int, c0: int, release_old: bo
     (`heap.release_pages`): the old and the new array are not both resident at once. A grid
     grows its log-odds and then its field, so otherwise three full arrays were resident at its
     largest growth (hospital log: 485 MB)."""
-    if a.dtype.itemsize not in (1, 2, 4, 8):  # no unsigned integer of its size to copy the bits as
-        out[r0:r0 + a.shape[0], c0:c0 + a.shape[1]] = a
-        return
-    bits = f"u{a.dtype.itemsize}"
+    bits = f"u{a.dtype.itemsize}"  # the grid's float32 cells, copied as their bits
     dst = out.view(bits)
     release = release_old and a.flags.c_contiguous and a.flags.owndata and a.base is None and a.nbytes > 2 * RELEASE_BAND_BYTES
-    if not release:
-        copy_nonzero(a.view(bits), dst, r0, c0)
-        return
     H = a.shape[0]
-    rows = max(RELEASE_BAND_BYTES // a.strides[0], 1)
+    rows = max(RELEASE_BAND_BYTES // a.strides[0], 1) if release else max(H, 1)
     released = 0
     for r in range(0, H, rows):
         copy_nonzero(a[r:r + rows].view(bits), dst, r0 + r, c0)
-        released = release_pages(a, released, min(min(r + rows, H) * a.strides[0], a.nbytes))
+        if release:
+            released = release_pages(a, released, min(r + rows, H) * a.strides[0])
 
 
 def _sole_reference_count() -> int:
