@@ -126,12 +126,13 @@ def sim_loops(out: Path, n_jobs: int, filters: tuple[str, ...]) -> None:
     for r in bench_filters._many(jobs, out / "sim_loops", n_jobs):
         t = r.get("trajectory", {})
         nan = float("nan")
+        lt = r.get("loop_truth") or {}
         rows.append({**r["job"], "ate_m": t.get("rmse_m", nan), "aligned_m": t.get("aligned_rmse_m", nan),
-                     "causal_m": t.get("causal_rmse_m", nan), **_common(r)})
+                     "causal_m": t.get("causal_rmse_m", nan), **_common(r), "wrong": lt.get("wrong", nan)})
     _runs_and_worst(pd.DataFrame(rows), "sim_loops: ATE RMSE per run (m)",
                     "sim_loops: worst of dataset seeds 0-4 (budget: <= 0.10 m unaligned, <= 0.05 m aligned)", 3,
                     worst_ate_m=("ate_m", "max"), worst_aligned_m=("aligned_m", "max"), mean_ate_m=("ate_m", "mean"),
-                    worst_causal_m=("causal_m", "max"), filter_s=("filter_s", "mean"))
+                    worst_causal_m=("causal_m", "max"), filter_s=("filter_s", "mean"), wrong_closures=("wrong", "sum"))
 
 
 def hospital(out: Path, filters: tuple[str, ...]) -> None:

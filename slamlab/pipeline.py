@@ -191,6 +191,10 @@ def accuracy_metrics(seq: Sequence, result: SlamResult) -> dict:
             out["trajectory"] = traj
         if gt.occupancy is not None:
             out["map"] = map_agreement(result.log_odds, gt.occupancy)
+        if result.extras.get("loop_candidates") is not None:  # filter=graph: its closures against the truth
+            from slamlab.eval.closures import closure_truth
+
+            out["loop_truth"] = closure_truth(result.extras["loop_candidates"], result.extras["step_scans"], gt.poses)
     if seq.relations is not None:
         from slamlab.eval.relations import LOOP_MIN_DT_S, loop_end_offsets, relation_errors
 

@@ -59,6 +59,7 @@ class RunMetrics:
     trajectory: dict[str, Any] | None = None
     map: dict[str, Any] | None = None
     relations: dict[str, Any] | None = None
+    loop_truth: dict[str, Any] | None = None  # filter=graph on simulated data: accepted closures, how many wrong (slamlab.eval.closures)
     consistency: dict[str, Any] | None = None
     texture: dict[str, Any] | None = None
     # --- whole run ---
