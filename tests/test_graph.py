@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib.util
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -21,7 +22,7 @@ from slamlab.eval.relations import relation_errors
 from slamlab.geometry import se2_between, se2_compose
 from slamlab.slam.engine import run_slam
 from slamlab.slam.graph.branch_bound import NO_EXCLUSION, CorrelativeSearch, SearchGrid, SearchWindow, bnb_search, exhaustive_search, max_pool_levels, place_points
-from slamlab.slam.graph.loops import ACCEPTED, PENDING, LoopCandidate
+from slamlab.slam.graph.loops import ACCEPTED, PENDING, LoopCandidate, LoopSearch, SearchSettings
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, consistency_matrix, max_clique, tied_distances
 from test_slam_engine import _cfg
@@ -100,6 +101,38 @@ def test_the_second_best_search_leaves_out_the_box_around_the_best():
                 one = exhaustive_search(grid, search.rows[k:k + 1] + dy, search.cols[k:k + 1] + dx, 0, 0)[0]
                 top = max(top, one)
     assert second.score_sum == top
+
+
+# ---- which submaps a node searches --------------------------------------------------------------
+def _finished(views: list[tuple[float, float]], centres: list[tuple[float, float]], radii: list[float]) -> SimpleNamespace:
+    """Finished submaps as `LoopSearch.submaps_in_reach` reads them, each in the global frame
+    (anchor local pose = identity): where each was seen from, and its known area's circle."""
+    n = len(views)
+    return SimpleNamespace(finished=[f"submap {i}" for i in range(n)], finished_anchor_local=np.zeros((n, 3)),
+                           finished_view=np.array(views, dtype=float), finished_center=np.array(centres, dtype=float),
+                           finished_radius=np.array(radii, dtype=float))
+
+
+def _reach(submaps: SimpleNamespace, pose, tied_m) -> list[str]:
+    search = LoopSearch(SearchSettings(0.1, 6, 0.55, 0.5, 0.9, 1.0, 0.35, 2, 30.0), 0.05, 4, 0.03, 0.01)
+    n = len(submaps.finished)
+    windows = np.tile([5.0, 0.5], (n, 1))
+    found = search.submaps_in_reach(np.asarray(pose, dtype=float), submaps, np.zeros((n, 3)), windows, np.asarray(tied_m, dtype=float))
+    return [sm for sm, *_ in found]
+
+
+def test_a_junction_seen_from_nearby_is_searched_beside_a_corridor_submap_whose_area_is_nearer():
+    # the robot at (20, 0) in a corridor along x. Submap 0: the corridor, seen from x = 0..4 with 30 m
+    # beams: its known area's centre is at x = 15. Submap 1: the junction, seen from (20, 4), its area
+    # centred at (20, 10). Submap 2: the robot's own, a few metres back (tied to it)
+    corridor_junction_own = _finished([(2, 0), (20, 4), (18, 0)], [(15, 0), (20, 10), (26, 0)], [16, 12, 15])
+    assert _reach(corridor_junction_own, (20, 0, 0), [200, 200, 5]) == ["submap 1", "submap 0", "submap 2"]
+    # one submap nearest both ways: one loop candidate, then the nearest other
+    assert _reach(corridor_junction_own, (20, 0, 0), [200, 5, 5]) == ["submap 0", "submap 2"]
+    # no loop candidate (everything tied lately): the nearest max_submaps - 1
+    assert _reach(corridor_junction_own, (20, 0, 0), [5, 5, 5]) == ["submap 0"]
+    # out of every window: nothing
+    assert _reach(corridor_junction_own, (200, 0, 0), [200, 200, 5]) == []
 
 
 # ---- verification -----------------------------------------------------------------------------
@@ -216,7 +249,10 @@ def graph_run(loop_log):
 @pytest.mark.slow
 def test_the_graph_closes_the_loops_that_local_slam_alone_leaves_metres_off(loop_log, graph_run):
     graph = graph_run[0]
-    alone = _run(loop_log, "filter.min_score=1.0")  # no candidate ever reaches the score: no closure
+    # no loop search at all (a node searches when its index is a multiple of search_every: only node 0, before any
+    # submap is finished). min_score=1.0 is not enough: a scan in the robot's own fresh submap can score 1.0
+    alone = _run(loop_log, f"filter.search_every={10**9}")
+    assert alone.extras["graph"]["searches"] == 0
     err = relation_errors(graph.times, graph.trajectory, loop_log.relations, loop_min_dt_s=sim_carmen.LOOP_MIN_DT_S)
     err_alone = relation_errors(alone.times, alone.trajectory, loop_log.relations, loop_min_dt_s=sim_carmen.LOOP_MIN_DT_S)
     assert err_alone["loop"]["trans_abs_mean_m"] > 1.0

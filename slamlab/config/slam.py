@@ -352,7 +352,13 @@ class GraphFilterConfig:
     wide_every: int = 5  # a wide window (over 5 m or 0.5 rad: tens of times the work) only from every k-th node, and from
     # every node while a correction waits for its group (a loop's return: the group forms within metres, not tens of metres;
     # 2026-11-29, corridor probe worst smoothed 0.113 -> 0.085 m at 2x, 0.100 -> 0.097 at 3x; Intel and ACES unchanged)
-    max_submaps_per_node: int = 2  # nearest finished submaps searched from one node
+    max_submaps_per_node: int = 2  # finished submaps searched from one node: its loop candidates (the nearest submap not
+    # tied to it for loop_min_path_m by where the submap was seen from, and by its known area's centre when that is another),
+    # then the nearest others, this many in all with one loop candidate (one more with two). Both loop candidates against
+    # the centre's alone (2026-11-29, bench_graph.py 36 runs): worst smoothed Intel 0.0203-0.0215 m at every step (was
+    # 0.0198-0.0305), ACES 0.0380 at 0.5 m steps (0.0409), 0.0392-0.0418 at the others (0.0394-0.0485); worst causal
+    # better at 6 of 12 steps, worse at 5; hospital p10 0.566 (0.571); sim_loops worst ATE 0.174 / 0.452 m at 1.5 / 2.0
+    # (0.226 / 0.396)
     # ---- verification: a closure that moves its node by more than trust_m / trust_rad needs a group of mutually
     # consistent ones
     trust_m: float = 0.1  # a closure asking for a correction within this (m) ...

@@ -1,7 +1,7 @@
 """Loop search: a node's scan against the finished submaps near its current estimate.
 
-For each submap whose area the search window reaches (nearest first, at most
-`max_submaps_per_node`):
+For each submap whose area the search window reaches (its loop candidates first, then the
+nearest others: `LoopSearch.submaps_in_reach`, `max_submaps_per_node`):
 1. branch and bound (`branch_bound.CorrelativeSearch`) over the window on the submap's
    max-pooled field, one scan point per search cell; no candidate above `min_score`: nothing;
 2. the best candidate is refined like a local match (hill climbing on the submap's field at
@@ -131,21 +131,32 @@ class LoopSearch:
                          windows: FloatArray, tied_m: FloatArray, which: np.ndarray | None = None) -> list[tuple[FinishedSubmap, FloatArray, tuple[float, float], float]]:
         """(submap, the node's pose in the submap's frame, window) for the finished submaps
         whose known area their window (`windows` (S, 2): half width m, half yaw rad) around
-        `pose` reaches, nearest first, at most `max_submaps`. `anchors_global` (S, 3): each
-        finished submap's anchor's estimate; `tied_m` (S,): how far each is from the node since
-        the graph last tied them (m of path), carried with each; `which` (S,): the finished
-        submaps these rows are (default: all, in order)."""
+        `pose` reaches: the loop candidates first (one or two), then the `max_submaps` - 1
+        nearest others (see below). `anchors_global` (S, 3): each finished submap's anchor's
+        estimate; `tied_m` (S,): how far each is from the node since the graph last tied them
+        (m of path), carried with each; `which` (S,): the finished submaps these rows are
+        (default: all, in order)."""
         idx = np.arange(len(submaps.finished)) if which is None else which
         frames = se2_compose(anchors_global, se2_inverse(submaps.finished_anchor_local[idx]))  # submap frame -> global
         guess = se2_between(frames, pose)
         d = np.hypot(guess[:, 0] - submaps.finished_center[idx, 0], guess[:, 1] - submaps.finished_center[idx, 1])
         near = np.flatnonzero(d <= submaps.finished_radius[idx] + windows[:, 0])
         near = near[np.argsort(d[near], kind="stable")]
-        # loop candidates first: of the submaps in reach, the nearest not tied to the node for
-        # `loop_min_path_m` (where a loop can close), then the nearest tied ones (which confirm
-        # the local map); the nearest alone would almost always be the last few submaps
-        loop = near[tied_m[near] >= self.s.loop_min_path_m]
-        near = np.concatenate([loop[:1], near[~np.isin(near, loop[:1])]])[: self.s.max_submaps]
+        # loop candidates first: of the submaps in reach not tied to the node for `loop_min_path_m`
+        # (where a loop can close), the nearest by where it was seen from (its nodes) and the
+        # nearest by its known area's centre, when that is another. Down a corridor the first lies
+        # ~15 m ahead of the second (30 m beams), so "nearest" by it alone was often the robot's own
+        # submap of 30 m before and never the first visit's at a junction (ACES: loop relations
+        # 0.110 -> 0.066 m); by the second alone it missed others the first finds (the hospital).
+        # Then the nearest others, which confirm the local map; the nearest alone would almost
+        # always be the last few submaps
+        untied = near[tied_m[near] >= self.s.loop_min_path_m]
+        seen_from = np.hypot(guess[untied, 0] - submaps.finished_view[idx[untied], 0], guess[untied, 1] - submaps.finished_view[idx[untied], 1])
+        loop = untied[:1]
+        if len(untied) and untied[int(np.argmin(seen_from))] != untied[0]:
+            loop = np.array([untied[int(np.argmin(seen_from))], untied[0]])
+        others = near[~np.isin(near, loop)][: max(self.s.max_submaps - 1, 0)]
+        near = np.concatenate([loop, others])
         return [(submaps.finished[idx[j]], guess[j], (float(windows[j, 0]), float(windows[j, 1])), float(tied_m[j])) for j in near]
 
     def search(self, node: int, pose: FloatArray, fine_pts: FloatArray, own: FloatArray, origin: FloatArray, submaps: Submaps, reach: list[tuple[FinishedSubmap, FloatArray, tuple[float, float], float]],

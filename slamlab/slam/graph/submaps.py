@@ -145,6 +145,7 @@ class Submaps:
         self.finished_anchor_local = np.zeros((0, 3))
         self.finished_center = np.zeros((0, 2))
         self.finished_radius = np.zeros(0)
+        self.finished_view = np.zeros((0, 2))  # where each was seen from: the mean of its nodes' positions (m, local frame)
         # the few finished submaps in use, unpacked, and their search grids (a revisit searches
         # the same few submaps node after node)
         self._arrays = _Recent(UNPACKED)
@@ -226,6 +227,7 @@ class Submaps:
         self.finished_anchor_local = np.vstack([self.finished_anchor_local, f.anchor_local])
         self.finished_center = np.vstack([self.finished_center, f.center])
         self.finished_radius = np.append(self.finished_radius, f.radius)
+        self.finished_view = np.vstack([self.finished_view, f.node_local[:, :2].mean(axis=0)])
         return f
 
     def memory_mb(self) -> float:
