@@ -52,7 +52,10 @@ EXTRA_OVERRIDES: list[str] = []  # `--set`: added to every run (set once, in mai
 
 
 def slamlab(args: list[str], run_dir: Path, threads: int | None = None) -> dict:
-    """Run one `slamlab` process; returns its metrics plus wall, CPU and peak memory."""
+    """Run one `slamlab` process; returns its metrics plus wall, CPU and peak memory. The code
+    it runs is the checkout the benchmark was started in (`python -m` puts the working
+    directory first on sys.path, ahead of PYTHONPATH): to measure other code, start the
+    benchmark from that code's checkout (bench_graph.py and the others call this too)."""
     env = dict(os.environ)
     if threads is not None:
         env["NUMBA_NUM_THREADS"] = str(threads)
