@@ -144,17 +144,20 @@ class LoopSearch:
         near = near[np.argsort(d[near], kind="stable")]
         # loop candidates first: of the submaps in reach not tied to the node for `loop_min_path_m`
         # (where a loop can close), the nearest by where it was seen from (its nodes) and the
-        # nearest by its known area's centre, when that is another. Down a corridor the first lies
-        # ~15 m ahead of the second (30 m beams), so "nearest" by it alone was often the robot's own
-        # submap of 30 m before and never the first visit's at a junction (ACES: loop relations
-        # 0.110 -> 0.066 m); by the second alone it missed others the first finds (the hospital).
+        # nearest by its known area's centre, when that is another. Down a corridor a submap's
+        # area is centred ~15 m ahead of where it was seen from (30 m beams), so the nearest by
+        # the centre alone was often the robot's own submap of 30 m before and never the first
+        # visit's at a junction (ACES at 0.5 m steps: loop relations 0.110 -> 0.059 m); by where
+        # it was seen from alone, others the centre finds were missed (the hospital).
         # Then the nearest others, which confirm the local map; the nearest alone would almost
         # always be the last few submaps
         untied = near[tied_m[near] >= self.s.loop_min_path_m]
-        seen_from = np.hypot(guess[untied, 0] - submaps.finished_view[idx[untied], 0], guess[untied, 1] - submaps.finished_view[idx[untied], 1])
         loop = untied[:1]
-        if len(untied) and untied[int(np.argmin(seen_from))] != untied[0]:
-            loop = np.array([untied[int(np.argmin(seen_from))], untied[0]])
+        if len(untied):
+            seen_from = np.hypot(guess[untied, 0] - submaps.finished_view[idx[untied], 0], guess[untied, 1] - submaps.finished_view[idx[untied], 1])
+            nearest_seen = untied[int(np.argmin(seen_from))]
+            if nearest_seen != untied[0]:
+                loop = np.array([nearest_seen, untied[0]])
         others = near[~np.isin(near, loop)][: max(self.s.max_submaps - 1, 0)]
         near = np.concatenate([loop, others])
         return [(submaps.finished[idx[j]], guess[j], (float(windows[j, 0]), float(windows[j, 1])), float(tied_m[j])) for j in near]
