@@ -19,6 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from slamlab.geometry import FloatArray, se2_between, wrap_angle
+from slamlab.slam.graph.loops import ACCEPTED
 
 WRONG_M = 0.3  # m, in the directions a closure pins
 WRONG_DEG = 5.0  # degrees of yaw
@@ -36,7 +37,7 @@ def closure_truth(candidates: Sequence, node_scans: np.ndarray, truth: FloatArra
     """`metrics.json`'s `loop_truth`: of the accepted `candidates` (`LoopCandidate`: anchor,
     node, relative, covariance, status), how many are wrong (module doc), and the largest
     errors. `node_scans[k]`: node k's scan index; `truth` (scans, 3): the true poses."""
-    accepted = [c for c in candidates if c.status == "accepted"]
+    accepted = [c for c in candidates if c.status == ACCEPTED]
     out = {"accepted": len(accepted), "wrong": 0, "worst_m": 0.0, "worst_deg": 0.0, "wrong_m": WRONG_M, "wrong_deg": WRONG_DEG}
     if not accepted:
         return out
