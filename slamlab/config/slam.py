@@ -364,7 +364,6 @@ class GraphFilterConfig:
     trust_m: float = 0.1  # a closure asking for a correction within this (m) ...
     trust_rad: float = 0.02  # ... and this in yaw (rad), as a 99 % gate where the match pins the pose, enters alone
     loop_min_path_m: float = 30.0  # a larger correction comes only from a submap not tied to the robot for this long (m of path)
-    far_m: float = 1.0  # accepted closures this far (m) from the estimate: optimise the whole graph from LAGO at once
     group_size: int = 3  # closures from a wider window enter in pairwise-consistent groups of at least this many
     group_extent_m: float = 2.0  # ... whose nodes spread over at least this much of the path (m). 8 until 2026-11-29: at coarse
     # steps (1.0 m) a loop's return gave closures from 3 nodes within 4 m, which never formed a group (Intel at 1.0 m steps
@@ -398,7 +397,7 @@ class GraphFilterConfig:
             require_int(g, name, getattr(self, name), 2 if name in ("submap_nodes",) else 1)
         if self.search_levels > 12:
             raise ConfigError(f"{g}.search_levels", f"must be at most 12, got {self.search_levels!r}")
-        for name in ("search_resolution_m", "window_max_m", "ambiguity_m", "ambiguity_rad", "loop_sigma_m", "loop_sigma_rad", "trust_m", "trust_rad", "far_m", "redraw_m", "redraw_rad",
+        for name in ("search_resolution_m", "window_max_m", "ambiguity_m", "ambiguity_rad", "loop_sigma_m", "loop_sigma_rad", "trust_m", "trust_rad", "redraw_m", "redraw_rad",
                      "local_sigma_m", "local_sigma_rad", "loss_scale", "prune_m", "prune_rad", "consistency_m", "consistency_rad"):
             require_positive(g, name, getattr(self, name))
         for name in ("local_yaw_half_width_rad", "window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "query_m", "loop_min_path_m", "group_extent_m", "group_span_m",

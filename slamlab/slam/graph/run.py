@@ -44,7 +44,7 @@ from slamlab.slam.graph.particles import ParticleTracker
 from slamlab.slam.graph.loops import ACCEPTED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings, WindowPolicy
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.submaps import Submaps
-from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, correction_fits
+from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings
 from slamlab.slam.mapping import map_from_trajectory
 from slamlab.slam.matcher import LikelihoodFieldMatcher
 from slamlab.slam.plan import BetweenScans, Components, plan_steps
@@ -54,7 +54,6 @@ from slamlab.slam.steps import fill_between_steps
 
 WIDE_M = 5.0  # a search window wider than this (m, half width) ...
 WIDE_RAD = 0.5  # ... or this (rad) is a wide one (`filter.wide_every`)
-FAR_RAD_PER_M = 0.1  # a correction of far_m metres, or of far_m x this in yaw (rad), is a large one
 log = logging.getLogger(__name__)
 REFUTE_MIN = 3  # a group is refuted when it leaves more than this many earlier closures far off ...
 REFUTE_SHARE = 0.02  # ... and more than this share of them
@@ -183,7 +182,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
             break
     verifier.flush()
     graph.update()
-    final_s = _optimise(graph, by_loop, s.prune_m, s.prune_rad, from_lago=False) if graph.loops else 0.0
+    final_s = _optimise(graph, by_loop, s.prune_m, s.prune_rad) if graph.loops else 0.0
     runtime = time.perf_counter() - t_loop
     smooth = graph.poses.copy()
     if between is not None:
@@ -336,7 +335,9 @@ def _apart(a: FloatArray, b: FloatArray, m: float, rad: float) -> bool:
 
 def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[LoopCandidate], s, k: int) -> float:
     """A group of closures asking for a correction, already added to the graph: the whole
-    graph optimised with them (from LAGO when the correction is large). If that leaves more
+    graph optimised with them, the group first taken in as it says (`PoseGraph.optimise_batch`
+    with the group trusted: under the robust loss alone a correction of a metre or more stays
+    open, held by the path and the closures that hold its drifted shape). If that leaves more
     than REFUTE_SHARE of the closures the graph held before (at least REFUTE_MIN) far off,
     the group contradicts what the graph already knew (a corridor matched a few doors off,
     consistently): its closures are taken out (status `refuted`) and the estimate goes back.
@@ -345,8 +346,7 @@ def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[
     ids = {c.loop_id for c in group}
     before = np.array([j for j in np.flatnonzero(graph.active) if j not in ids], dtype=np.int64)
     kept = graph.poses.copy()
-    far = any(not correction_fits(c, kept, s.far_m, s.far_m * FAR_RAD_PER_M) for c in group)
-    graph.optimise_batch(from_lago=far)
+    graph.optimise_batch(trusted=ids)
     broken = int(graph.loops_off(before, s.prune_m, s.prune_rad).sum())
     if broken > max(REFUTE_MIN, REFUTE_SHARE * len(before)):
         for c in group:
@@ -355,8 +355,8 @@ def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[
         graph.restore(kept)
         log.debug("node %d: a group of %d closures refuted: %d of %d earlier closures would break", k, len(group), broken, len(before))
     else:
-        _prune_and_reoptimise(graph, by_loop, s.prune_m, s.prune_rad, far)
-        log.debug("node %d: a group of %d closures in (%s; %d earlier closures off)", k, len(group), "from LAGO" if far else "LM", broken)
+        _prune_and_reoptimise(graph, by_loop, s.prune_m, s.prune_rad)
+        log.debug("node %d: a group of %d closures in (%d earlier closures off)", k, len(group), broken)
     return time.perf_counter() - t0
 
 
@@ -372,21 +372,20 @@ def _prune(graph: PoseGraph, by_loop: dict[int, LoopCandidate], prune_m: float, 
     return bool(len(off))
 
 
-def _optimise(graph: PoseGraph, by_loop: dict[int, LoopCandidate], prune_m: float, prune_rad: float, from_lago: bool) -> float:
-    """The whole graph by Levenberg-Marquardt (from LAGO's estimate when `from_lago`); then
-    drop the closures the optimum leaves far off and optimise again while any were dropped
-    (at most three times), from LAGO again when it started there: LAGO has no robust loss,
-    and a wrong closure it took in may have bent the start. Returns the seconds spent."""
+def _optimise(graph: PoseGraph, by_loop: dict[int, LoopCandidate], prune_m: float, prune_rad: float) -> float:
+    """The whole graph by Levenberg-Marquardt; then drop the closures the optimum leaves far
+    off and optimise again while any were dropped (at most three times). Returns the seconds
+    spent."""
     t0 = time.perf_counter()
-    graph.optimise_batch(from_lago=from_lago)
-    _prune_and_reoptimise(graph, by_loop, prune_m, prune_rad, from_lago)
+    graph.optimise_batch()
+    _prune_and_reoptimise(graph, by_loop, prune_m, prune_rad)
     return time.perf_counter() - t0
 
 
-def _prune_and_reoptimise(graph: PoseGraph, by_loop: dict[int, LoopCandidate], prune_m: float, prune_rad: float, from_lago: bool) -> None:
+def _prune_and_reoptimise(graph: PoseGraph, by_loop: dict[int, LoopCandidate], prune_m: float, prune_rad: float) -> None:
     """After an optimisation: drop the closures it leaves far off (`_prune`) and optimise
     again while any were dropped, at most three times."""
     for _ in range(3):
         if not _prune(graph, by_loop, prune_m, prune_rad):
             break
-        graph.optimise_batch(from_lago=from_lago)
+        graph.optimise_batch()
