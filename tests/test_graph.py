@@ -24,6 +24,7 @@ from slamlab.slam.engine import run_slam
 from slamlab.slam.graph.branch_bound import NO_EXCLUSION, CorrelativeSearch, SearchGrid, SearchWindow, bnb_search, exhaustive_search, max_pool_levels, place_points
 from slamlab.slam.graph.loops import ACCEPTED, PENDING, LoopCandidate, LoopSearch, SearchSettings
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
+from slamlab.slam.graph.run import _try_group
 from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, consistency_matrix, max_clique, tied_distances
 from test_slam_engine import _cfg
 
@@ -184,16 +185,21 @@ def test_a_closure_ties_two_far_places_of_the_path_together():
 
 
 # ---- the pose graph ---------------------------------------------------------------------------
+def _square_loop() -> np.ndarray:
+    """(165, 3) true poses around an 80 m square: 40 steps of 0.5 m a side, then a quarter turn on the spot."""
+    truth = [np.zeros(3)]
+    for _side in range(4):
+        for _ in range(40):
+            truth.append(se2_compose(truth[-1], np.array([0.5, 0.0, 0.0])))
+        truth.append(se2_compose(truth[-1], np.array([0.0, 0.0, math.pi / 2])))
+    return np.array(truth)
+
+
 def test_a_wrong_closure_added_on_purpose_barely_moves_the_optimised_trajectory():
     """A square loop with noisy local edges and correct closures; one closure 2 m and 20 deg
     off, added to the same graph, moves no node by more than 2 cm (the robust loss)."""
     rng = np.random.default_rng(4)
-    truth = [np.zeros(3)]
-    for side in range(4):
-        for _ in range(40):
-            truth.append(se2_compose(truth[-1], np.array([0.5, 0.0, 0.0])))
-        truth.append(se2_compose(truth[-1], np.array([0.0, 0.0, math.pi / 2])))
-    truth = np.array(truth)
+    truth = _square_loop()
     noise = GraphNoise(0.01, 0.02, 0.005, 0.02, 0.03, 0.01, "cauchy", 1.0)
 
     def graph(wrong: bool) -> np.ndarray:
@@ -224,14 +230,7 @@ def test_a_group_of_closures_closes_a_loop_the_robust_loss_alone_would_leave_ope
     is first taken in as it says (its closures without the robust loss), then the whole graph is
     optimised under the loss from there: the loop closes (as far as the closures that hold
     the drifted shape let it)."""
-    from slamlab.slam.graph.run import _try_group
-
-    truth = [np.zeros(3)]
-    for _side in range(4):
-        for _ in range(40):
-            truth.append(se2_compose(truth[-1], np.array([0.5, 0.0, 0.0])))
-        truth.append(se2_compose(truth[-1], np.array([0.0, 0.0, math.pi / 2])))
-    truth = np.array(truth)
+    truth = _square_loop()
 
     def loop_error(trusting: bool) -> tuple[list[bool], float]:
         g = PoseGraph(truth[0], GraphNoise(0.01, 0.02, 0.005, 0.02, 0.03, 0.01, "cauchy", 0.5))
