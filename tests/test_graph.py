@@ -22,7 +22,7 @@ from slamlab.eval.relations import relation_errors
 from slamlab.geometry import se2_between, se2_compose
 from slamlab.slam.engine import run_slam
 from slamlab.slam.graph.branch_bound import NO_EXCLUSION, CorrelativeSearch, SearchGrid, SearchWindow, bnb_search, exhaustive_search, max_pool_levels, place_points
-from slamlab.slam.graph.loops import ACCEPTED, PENDING, LoopCandidate, LoopSearch, SearchSettings
+from slamlab.slam.graph.loops import ACCEPTED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.run import _try_group
 from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, consistency_matrix, max_clique, tied_distances
@@ -253,7 +253,7 @@ def test_a_group_of_closures_closes_a_loop_the_robust_loss_alone_would_leave_ope
         else:  # what the group's optimisation was before: the whole graph under the loss, from the estimate
             g.optimise_batch()
         off = list(g.loops_off(np.array([c.loop_id for c in group]), 0.5, 0.15))
-        assert not any(c.status in ("pruned", "refuted") for c in group)
+        assert not any(c.status in (PRUNED, REFUTED) for c in group)
         return off, float(np.hypot(*(g.poses[156:163, :2] - truth[156:163, :2]).T).max())
 
     off, error = loop_error(trusting=False)

@@ -188,16 +188,16 @@ class PoseGraph:
         params.setMaxIterations(50)
         params.setRelativeErrorTol(1e-6)
         initial = self._values(self.poses)
-        trusted = frozenset(int(j) for j in trusted)
-        if trusted:
-            initial = gtsam.LevenbergMarquardtOptimizer(self._full_graph(trusted), initial, params).optimize()
+        trust = frozenset(int(j) for j in trusted)
+        if trust:
+            initial = gtsam.LevenbergMarquardtOptimizer(self._full_graph(trust), initial, params).optimize()
         lm = gtsam.LevenbergMarquardtOptimizer(self._full_graph(), initial, params)
         new = gtsam.utilities.extractPose2(lm.optimize())
         new[:, 2] = wrap_angle(new[:, 2])
         moved = float(np.max(np.hypot(*(new[:, :2] - self.poses[:, :2]).T)))
         self._x[: self.n] = new
         self._restart()
-        o = Optimisation(time.perf_counter() - t0, int(lm.iterations()), len(trusted), moved)
+        o = Optimisation(time.perf_counter() - t0, int(lm.iterations()), len(trust), moved)
         self.optimisations.append(o)
         return o
 
