@@ -6,10 +6,11 @@ the box of every changed cell after each scan (`raycast.update_field`)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from slamlab.config.slam import MapConfig
 from slamlab.slam.grid import OccupancyGrid
-from slamlab.slam.raycast import raycast_update, update_field
+from slamlab.slam.raycast import HIT_UNITS, WALL_STEPS, raycast_update, update_field
 
 _NO_FLIP = (np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1)
 
@@ -30,9 +31,9 @@ def _reference_insert(g: OccupancyGrid, lo: np.ndarray, field: np.ndarray, senso
     raycast_update(lo, int(sr[0]), int(sc[0]), rows, cols, np.float32(s.log_odds_occupied), np.float32(s.log_odds_free),
                    np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold), flip)
     if flip[1] >= 0:
-        R = g.kernel.shape[0] // 2
+        R = g.field_radius
         H, W = lo.shape
-        update_field(lo, field, np.float32(s.occupied_threshold), g.kernel,
+        update_field(lo, field, np.float32(s.occupied_threshold), g.bank, g.hit_dx, g.hit_dy,
                      max(flip[0] - R, 0), min(flip[1] + R + 1, H), max(flip[2] - R, 0), min(flip[3] + R + 1, W))
 
 
@@ -67,11 +68,12 @@ def _common_box(a: OccupancyGrid, b: OccupancyGrid) -> tuple[tuple[np.ndarray, n
     return cut(a), cut(b)
 
 
-def test_insert_many_equals_inserting_one_scan_at_a_time():
+@pytest.mark.parametrize("at_hits", [False, True])
+def test_insert_many_equals_inserting_one_scan_at_a_time(at_hits):
     """Scans reaching beyond the initial grid: one-by-one grows it several times, insert_many once."""
     rng = np.random.default_rng(1)
     s = MapConfig(initial_size_m=20.0)
-    one, many = OccupancyGrid(s, (0.0, 0.0), 0.05, 0.3), OccupancyGrid(s, (0.0, 0.0), 0.05, 0.3)
+    one, many = OccupancyGrid(s, (0.0, 0.0), 0.05, 0.3, at_hits), OccupancyGrid(s, (0.0, 0.0), 0.05, 0.3, at_hits)
     sensors, scans = [], []
     for _ in range(100):
         sensor, pts = _random_scan(rng, 8.0, 12.0)
@@ -86,12 +88,13 @@ def test_insert_many_equals_inserting_one_scan_at_a_time():
     assert np.count_nonzero(many.log_odds) == np.count_nonzero(one.log_odds)  # nothing drawn outside it
 
 
-def test_a_field_started_late_equals_one_kept_from_the_start():
+@pytest.mark.parametrize("at_hits", [False, True])
+def test_a_field_started_late_equals_one_kept_from_the_start(at_hits):
     """`start_field` on a grid built without a field (a graph submap, whose field is only read
     once it is finished): the values `insert` would have kept scan by scan, and kept after."""
     rng = np.random.default_rng(2)
     s = MapConfig(initial_size_m=4.0)
-    kept, late = OccupancyGrid(s, (0.0, 0.0), 0.1, 0.3), OccupancyGrid(s, (0.0, 0.0))
+    kept, late = OccupancyGrid(s, (0.0, 0.0), 0.1, 0.3, at_hits), OccupancyGrid(s, (0.0, 0.0), walls_at_hits=at_hits)
     grown_at_start = 0
     for i in range(60):
         sensor, pts = _random_scan(rng, 1.0 + i, 4.0 + i)  # ever farther: the grids grow before and after the start
@@ -105,11 +108,12 @@ def test_a_field_started_late_equals_one_kept_from_the_start():
     assert np.array_equal(late.log_odds, kept.log_odds) and np.array_equal(late.field, kept.field)
 
 
-def test_growing_keeps_every_cell_where_it_was_and_the_new_margins_empty():
+@pytest.mark.parametrize("at_hits", [False, True])
+def test_growing_keeps_every_cell_where_it_was_and_the_new_margins_empty(at_hits):
     """`ensure` past two sides at once: the old cells (log-odds and field) sit at the same world
     place in the grown grid, and every new cell is 0, as np.pad's zero margins were."""
     rng = np.random.default_rng(3)
-    g = OccupancyGrid(MapConfig(initial_size_m=10.0), (0.0, 0.0), 0.1, 0.3)
+    g = OccupancyGrid(MapConfig(initial_size_m=10.0), (0.0, 0.0), 0.1, 0.3, at_hits)
     for _ in range(20):
         g.insert(*_random_scan(rng, 1.0, 1.8))  # inside the 10 m grid: no growth yet
     assert g.grow_count == 0
@@ -122,9 +126,11 @@ def test_growing_keeps_every_cell_where_it_was_and_the_new_margins_empty():
     margin = np.ones(g.shape, dtype=bool)
     margin[:lo.shape[0], dc:dc + lo.shape[1]] = False
     assert not g.log_odds[margin].any()
+    if at_hits:
+        assert g.hit_n.shape == g.shape and not g.hit_n[margin].any() and g.hit_n.any()
     # the field: unchanged inside, and in the margins exactly what the walls near the old edges give
     ref = np.zeros(g.shape, dtype=np.float32)
-    update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.kernel, 0, g.shape[0], 0, g.shape[1])
+    update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.bank, g.hit_dx, g.hit_dy, 0, g.shape[0], 0, g.shape[1])
     assert np.array_equal(g.field[:lo.shape[0], dc:dc + lo.shape[1]], field)
     assert np.array_equal(g.field, ref)
 
@@ -152,7 +158,7 @@ def test_a_large_grid_grows_as_np_pad_and_gives_the_old_memory_back_only_when_no
     assert np.array_equal(held, held_copy)  # not given back
     assert released and set(released) == {lo.shape}  # the log-odds (no one else held it) was
     ref = np.zeros(g.shape, dtype=np.float32)
-    update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.kernel, 0, g.shape[0], 0, g.shape[1])
+    update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.bank, g.hit_dx, g.hit_dy, 0, g.shape[0], 0, g.shape[1])
     assert np.array_equal(g.field, ref)
 
 
@@ -176,3 +182,60 @@ def test_growing_an_array_no_one_reads_again_gives_its_pages_back():
     zero = (a.reshape(-1) == 0)
     assert zero.mean() > 0.99  # given back: all but the partial first and last pages
     assert zero[-1] != end_in_partial_page  # a last partial page is kept (its other bytes may be someone else's)
+
+
+def _brute_force_field(g: OccupancyGrid, sigma_m: float, radius_m: float) -> np.ndarray:
+    """The field from its definition: each cell's value is the largest exp(-d^2 / 2 sigma^2) over
+    the walls within R cells in rows and columns (R = radius_m in cells) and within R + 1/2 cells
+    of it, d the distance (m) from the cell's centre to the wall's place: its cell's centre moved
+    by its mean hit offset, rounded to the nearest of WALL_STEPS places a side."""
+    res, R = g.res, int(np.ceil(radius_m / g.res))
+    walls = np.argwhere(g.log_odds > g.s.occupied_threshold)
+    place = lambda o: ((np.floor((o.astype(np.int64) + HIT_UNITS // 2) * WALL_STEPS / HIT_UNITS) + 0.5) / WALL_STEPS - 0.5)
+    out = np.zeros(g.shape)
+    for r, c in walls:
+        px, py = c + place(g.hit_dx[r, c]), r + place(g.hit_dy[r, c])  # the wall's place (cells)
+        rr, cc = np.mgrid[max(r - R, 0):min(r + R + 1, g.shape[0]), max(c - R, 0):min(c + R + 1, g.shape[1])]
+        d2 = ((cc - px) ** 2 + (rr - py) ** 2) * res**2
+        v = np.where(d2 <= ((R + 0.5) * res) ** 2, np.exp(-d2 / (2 * sigma_m**2)), 0.0)
+        out[rr, cc] = np.maximum(out[rr, cc], v)
+    return out
+
+
+def test_walls_at_hits_keep_the_mean_of_their_hits_and_the_field_peaks_there():
+    """Hits scattered in one cell around (0.3, -0.2) cells from its centre: the cell keeps their
+    mean (to 1/256 cell), and the field is highest on that side of it."""
+    rng = np.random.default_rng(7)
+    g = OccupancyGrid(MapConfig(initial_size_m=4.0), (0.0, 0.0), 0.05, 0.2, walls_at_hits=True)
+    r, c = 40, 40
+    centre = g.origin + (np.array([c, r]) + 0.5) * g.res
+    offsets = np.array([0.3, -0.2]) + rng.uniform(-0.15, 0.15, (20, 2))  # cells
+    for o in offsets:
+        g.insert(centre + np.array([-1.0, 0.3]), (centre + o * g.res).reshape(1, 2))
+    assert g.hit_n[r, c] == 20
+    mean = offsets.mean(axis=0) * HIT_UNITS
+    assert abs(g.hit_dx[r, c] - mean[0]) <= 1.5 and abs(g.hit_dy[r, c] - mean[1]) <= 1.5
+    assert g.field[r, c + 1] > g.field[r, c - 1] and g.field[r - 1, c] > g.field[r + 1, c]
+    assert np.allclose(g.field, _brute_force_field(g, 0.05, 0.2), atol=1e-6)
+
+
+def test_walls_at_hits_field_kept_scan_by_scan_equals_its_definition():
+    """Random scans, some hitting the same cells again (their walls move within the cell) and
+    some freeing walls: after each, the field kept incrementally is exactly the field recomputed
+    over the whole grid, and (checked now and then, it is slow) its definition."""
+    rng = np.random.default_rng(8)
+    g = OccupancyGrid(MapConfig(initial_size_m=12.0), (0.0, 0.0), 0.1, 0.3, walls_at_hits=True)
+    moved = 0
+    for i in range(150):
+        sensor, pts = _random_scan(rng, 2.0, 4.0)
+        if i % 3 == 0:
+            pts = np.round(pts, 1) + rng.normal(0.0, 0.01, pts.shape)  # the same cells hit again, at other places within them
+        places = g.hit_dx.copy(), g.hit_dy.copy()
+        g.insert(sensor, pts)
+        moved += int(np.count_nonzero((g.hit_dx != places[0]) & (g.log_odds > 0)))
+        ref = np.zeros(g.shape, dtype=np.float32)
+        update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.bank, g.hit_dx, g.hit_dy, 0, g.shape[0], 0, g.shape[1])
+        assert np.array_equal(g.field, ref), f"field differs after scan {i}"
+        if i % 50 == 49:
+            assert np.allclose(g.field, _brute_force_field(g, 0.1, 0.3), atol=1e-6)
+    assert moved > 100  # walls did move within their cells

@@ -90,7 +90,7 @@ def test_likelihood_field_is_right_after_the_grid_grows():
     assert g.grow_count >= 1
     full = np.zeros_like(g.field)
     H, W = g.shape
-    update_field(g.log_odds, full, np.float32(g.s.occupied_threshold), g.kernel, 0, H, 0, W)
+    update_field(g.log_odds, full, np.float32(g.s.occupied_threshold), g.bank, g.hit_dx, g.hit_dy, 0, H, 0, W)
     np.testing.assert_array_equal(g.field, full)
     r, c = g.cells(np.array([[-0.95, 0.0]]))  # a new cell one step left of the old wall
     assert g.field[r[0], c[0]] > 0.5

@@ -322,6 +322,9 @@ class GraphFilterConfig:
     # RBPF, `particles` of them, with the run's motion, weighting and resampler; restarted after a large correction).
     # `particles` measured worse than `map` (2026-11-29: sim_loops 2.0 ATE up to 2.17 m against 0.40, Intel causal 0.049
     # against 0.018 m, 5-10x the time; benchmarks/RESULTS.md), kept as the "loop closure for the RBPF" experiment
+    wall_at: str = "centre"  # where a wall's likelihood-field peak sits in its cell, in the online map and the submaps:
+    # `centre` (the cell's centre) or `hits` (the mean of the scan hits that fell in it, to 1/9 of a cell: slam/raycast.note_hits;
+    # three bytes more a cell of those grids). Walls at cell centres stand up to half a cell inside the surface they map
     redraw_m: float = 0.15  # local_map=map: when the graph puts the robot this far (m) or redraw_rad from where the
     redraw_rad: float = 0.035  # local map has it, the map is drawn again from the graph (the online pose jumps to the graph's).
     # 0.15 against 0.3 (bench_graph.py, 2026-11-29): ACES worst causal 0.0399 / 0.0382 m at 0.5 / 0.25 m steps (0.0417 /
@@ -407,6 +410,7 @@ class GraphFilterConfig:
             require_fraction(g, name, getattr(self, name))
         require_choice(g, "loss", self.loss, ("cauchy", "huber", "none"))
         require_choice(g, "local_map", self.local_map, ("map", "submap", "particles"))
+        require_choice(g, "wall_at", self.wall_at, ("centre", "hits"))
         _check_online(self.online)
 
 

@@ -112,7 +112,7 @@ class SharedMap(ParticleMaps):
 
     def _mb(self) -> float:
         g = self.grid
-        return (g.log_odds.nbytes + (g.field.nbytes if g.field is not None else 0)) / 1e6
+        return g.nbytes / 1e6
 
     def memory(self) -> dict:
         H, W = self.grid.shape

@@ -5,7 +5,9 @@ as `frames.GridImage`. When a scan would fall off the grid, the grid is enlarged
 side by the scan's overshoot plus `growth_margin_m`, so no part of a long log is lost and
 growth (a copy) happens rarely. Optionally the grid also keeps a likelihood field (a
 Gaussian of the distance to the nearest occupied cell) for scan matching, recomputed only
-where a scan changed which cells are occupied.
+where a scan changed which cells are occupied. With `walls_at_hits` each wall's Gaussian is
+centred where the scan hits in its cell fell on average, not at the cell's centre
+(`raycast.note_hits`).
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ from slamlab.geometry import FloatArray
 from slamlab.config.slam import MapConfig
 from slamlab.heap import release_pages
 from slamlab.slam.raycast import (
-    copy_nonzero, field_radius_cells, gaussian_kernel, raise_field, raycast_update, raycast_update_noting, refresh_cells, update_field,
+    WALL_STEPS, copy_nonzero, field_radius_cells, kernel_bank, note_hits, raise_field, raycast_update, raycast_update_noting, refresh_cells,
+    update_field,
 )
 
 # The `map/` config group's schema is the settings object the grid reads: resolution_m,
@@ -29,6 +32,7 @@ from slamlab.slam.raycast import (
 MapSettings = MapConfig
 
 
+NO_CELLS = np.empty((0, 2), dtype=np.int64)  # `note_hits` with nowhere to list moved walls (no field to keep)
 RELEASE_BAND_BYTES = 4 << 20  # `_copy_into` gives an old array over twice this size back in bands of about this size
 
 
@@ -72,7 +76,9 @@ class OccupancyGrid:
 
     `field_sigma_m` > 0 also maintains `field` (float32, values in [0, 1]) =
     exp(-d^2 / (2 sigma^2)) with d the distance (m) to the nearest occupied cell, cut off at
-    `field_radius_m`.
+    `field_radius_m`. `walls_at_hits`: d is measured from the mean of the hits in that cell
+    (to 1/9 of a cell), kept in three bytes a cell (`hit_dx`, `hit_dy`, `hit_n`), for a field
+    started now or later (`start_field`).
     """
 
     def __init__(
@@ -81,17 +87,22 @@ class OccupancyGrid:
         center_xy: tuple[float, float] = (0.0, 0.0),
         field_sigma_m: float = 0.0,
         field_radius_m: float = 0.0,
+        walls_at_hits: bool = False,
     ) -> None:
         self.s = settings
         self.res = settings.resolution_m
         n = max(int(np.ceil(settings.initial_size_m / self.res)), 8)
         self.origin = np.array([center_xy[0] - n * self.res / 2.0, center_xy[1] - n * self.res / 2.0])
         self.log_odds = np.zeros((n, n), dtype=np.float32)
-        self.kernel: np.ndarray | None = None
+        self.bank: np.ndarray | None = None  # the field's kernels: one, or one per place in a cell (walls_at_hits)
         self.field: np.ndarray | None = None
+        # each cell's mean hit offset from its centre (int8, 1/256 cell) and hit count; empty: walls at cell centres
+        shape = (n, n) if walls_at_hits else (0, 0)
+        self.hit_dx = np.zeros(shape, dtype=np.int8)
+        self.hit_dy = np.zeros(shape, dtype=np.int8)
+        self.hit_n = np.zeros(shape, dtype=np.uint8)
         if field_sigma_m > 0:
-            radius = field_radius_cells(field_sigma_m, field_radius_m, self.res)
-            self.kernel = gaussian_kernel(field_sigma_m / self.res, radius)
+            self._start_bank(field_sigma_m, field_radius_m)
             self.field = np.zeros((n, n), dtype=np.float32)
         self.grow_count = 0
         self._flips = np.empty((0, 2), dtype=np.int64)  # scratch for `insert`: the cells a scan changed
@@ -99,6 +110,26 @@ class OccupancyGrid:
     @property
     def shape(self) -> tuple[int, int]:
         return self.log_odds.shape  # type: ignore[return-value]
+
+    @property
+    def walls_at_hits(self) -> bool:
+        return self.hit_n.size > 0
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes the grid's arrays hold: log-odds, field, hit offsets."""
+        arrays = (self.log_odds, self.field, self.hit_dx, self.hit_dy, self.hit_n)
+        return sum(a.nbytes for a in arrays if a is not None)
+
+    @property
+    def field_radius(self) -> int:
+        """The field kernel's radius R (cells): a wall reaches R cells."""
+        assert self.bank is not None, "grid built without a likelihood field"
+        return self.bank.shape[1] // 2
+
+    def _start_bank(self, field_sigma_m: float, field_radius_m: float) -> None:
+        steps = WALL_STEPS if self.walls_at_hits else 1
+        self.bank = kernel_bank(field_sigma_m / self.res, field_radius_cells(field_sigma_m, field_radius_m, self.res), steps)
 
     def cells(self, xy: FloatArray) -> tuple[np.ndarray, np.ndarray]:
         """(rows, cols) int64 of world points (M, 2) m (may lie outside the grid)."""
@@ -121,6 +152,9 @@ class OccupancyGrid:
         if pad_l == pad_b == pad_r == pad_t == 0:
             return
         self.log_odds = self._grown_array("log_odds", pad_b, pad_t, pad_l, pad_r)
+        if self.walls_at_hits:
+            for name in ("hit_dx", "hit_dy", "hit_n"):
+                setattr(self, name, self._grown_array(name, pad_b, pad_t, pad_l, pad_r))
         if self.field is not None:
             self.field = self._grown_array("field", pad_b, pad_t, pad_l, pad_r)
             self._refresh_field_margins(pad_b, pad_l, H, W)
@@ -146,9 +180,8 @@ class OccupancyGrid:
         """After growing: walls near the old edge reach R cells into the new margin, which
         padding filled with zeros. Recompute the field in those bands (old grid: H x W,
         now at rows pad_b.., cols pad_l..)."""
-        R = self.kernel.shape[0] // 2  # type: ignore[union-attr]
+        R = self.field_radius
         NH, NW = self.shape
-        thr = np.float32(self.s.occupied_threshold)
         top, right = pad_b + H, pad_l + W
         for r0, r1, c0, c1 in (
             (0, NH, max(pad_l - R, 0), pad_l),  # left band
@@ -157,13 +190,13 @@ class OccupancyGrid:
             (top, min(top + R, NH), 0, NW),  # top band
         ):
             if r1 > r0 and c1 > c0:
-                update_field(self.log_odds, self.field, thr, self.kernel, r0, r1, c0, c1)
+                self._refresh_field(self.field, r0, r1, c0, c1)
 
     def start_field(self, field_sigma_m: float, field_radius_m: float) -> None:
         """Compute the likelihood field of a grid built without one (the values `insert` would
         have kept up to date, scan by scan: tested) and keep it from now on."""
         assert self.field is None and field_sigma_m > 0, "the grid has a field already, or none is asked for"
-        self.kernel = gaussian_kernel(field_sigma_m / self.res, field_radius_cells(field_sigma_m, field_radius_m, self.res))
+        self._start_bank(field_sigma_m, field_radius_m)
         self.field = np.zeros(self.shape, dtype=np.float32)
         self._refresh_field(self.field, 0, self.shape[0], 0, self.shape[1])
 
@@ -181,14 +214,18 @@ class OccupancyGrid:
                 np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold))
         if self.field is None:
             raycast_update(*args, np.array([np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1], dtype=np.int64))
+            self._note_hits(points_xy, rows, cols, NO_CELLS)
             return
-        flips = self._flips if len(self._flips) >= 4 * len(rows) + 64 else np.empty((4 * len(rows) + 64, 2), dtype=np.int64)
+        flips = self._flips if len(self._flips) >= 5 * len(rows) + 64 else np.empty((5 * len(rows) + 64, 2), dtype=np.int64)
         self._flips = flips
-        n_free, n_occ = raycast_update_noting(*args, flips)
-        if n_free + n_occ > len(flips):  # more changes than room: the field again over their box, as before
+        room = len(flips) - len(rows)  # the last len(rows) rows: the walls whose place in their cell moved
+        n_free, n_occ = raycast_update_noting(*args, flips[:room])
+        n_moved = self._note_hits(points_xy, rows, cols, flips[room:])
+        if n_free + n_occ > room:  # more changes than room: the field again over their box, as before
             self._refresh_field(self.field, 0, self.shape[0], 0, self.shape[1])
             return
-        self._update_field(flips[:n_free], flips[n_free:n_free + n_occ])
+        freed = flips[:n_free] if n_moved == 0 else np.concatenate([flips[:n_free], flips[room:room + n_moved]])
+        self._update_field(freed, flips[n_free:n_free + n_occ])
 
     def insert_many(self, sensors_xy: FloatArray, points_xy: list[FloatArray]) -> None:
         """Ray-cast many scans (sensor positions (K, 2) m, world hit points, one (M, 2) array
@@ -209,29 +246,41 @@ class OccupancyGrid:
             sr, sc = self.cells(np.asarray(sensor, dtype=np.float64).reshape(1, 2))
             raycast_update(self.log_odds, int(sr[0]), int(sc[0]), rows, cols, np.float32(s.log_odds_occupied), np.float32(s.log_odds_free),
                            np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold), flip)
+            self._note_hits(pts, rows, cols, NO_CELLS)
         if self.field is not None:
             self._refresh_field(self.field, 0, self.shape[0], 0, self.shape[1])
 
+    def _note_hits(self, points_xy: FloatArray, rows: np.ndarray, cols: np.ndarray, moved: np.ndarray) -> int:
+        """Take a scan's hits (world points (M, 2) m in cells rows, cols) into their cells' mean
+        hit offsets (walls_at_hits; else nothing). Lists the walls whose place moved in `moved`
+        (one row per hit: room for all; see `raycast.note_hits`) and returns how many."""
+        if not self.walls_at_hits:
+            return 0
+        return int(note_hits(self.log_odds, np.float32(self.s.occupied_threshold), self.hit_dx, self.hit_dy, self.hit_n,
+                             np.ascontiguousarray(points_xy[:, 0]), np.ascontiguousarray(points_xy[:, 1]), float(self.origin[0]),
+                             float(self.origin[1]), 1.0 / self.res, rows, cols, WALL_STEPS, moved))
+
     def _update_field(self, freed: np.ndarray, occupied: np.ndarray) -> None:
-        """The field after cells turned free (`freed`) and occupied (`occupied`), (K, 2) rows
-        and cols: around freed cells it is recomputed (a wall value there may have gone), then
-        it is raised around the new walls. The same values as recomputing the box of every
-        changed cell, which is what this replaced (tested), in a fraction of the reads."""
-        R = self.kernel.shape[0] // 2  # type: ignore[union-attr]
+        """The field after cells turned free or their wall moved in the cell (`freed`) and cells
+        turned occupied (`occupied`), (K, 2) rows and cols: around freed cells it is recomputed
+        (a wall value there may have gone), then it is raised around the new walls. The same
+        values as recomputing the box of every changed cell, which is what this replaced
+        (tested), in a fraction of the reads."""
+        R = self.field_radius
         H, W = self.shape
         if len(freed):
             r0, c0 = freed.min(axis=0)
             r1, c1 = freed.max(axis=0)
             box = (r1 - r0 + 2 * R + 1) * (c1 - c0 + 2 * R + 1)
             if len(freed) * (2 * R + 1) ** 2 < box:  # a few cells far apart (long beams): each one's neighbourhood
-                refresh_cells(self.log_odds, self.field, np.float32(self.s.occupied_threshold), self.kernel, freed)
+                refresh_cells(self.log_odds, self.field, np.float32(self.s.occupied_threshold), self.bank, self.hit_dx, self.hit_dy, freed)
             else:
                 self._refresh_field(self.field, max(r0 - R, 0), min(r1 + R + 1, H), max(c0 - R, 0), min(c1 + R + 1, W))
         if len(occupied):
-            raise_field(self.field, self.kernel, occupied)
+            raise_field(self.field, self.bank, self.hit_dx, self.hit_dy, occupied)
 
     def _refresh_field(self, field: np.ndarray, r0: int, r1: int, c0: int, c1: int) -> None:
-        update_field(self.log_odds, field, np.float32(self.s.occupied_threshold), self.kernel, r0, r1, c0, c1)
+        update_field(self.log_odds, field, np.float32(self.s.occupied_threshold), self.bank, self.hit_dx, self.hit_dy, r0, r1, c0, c1)
 
     def occupied(self) -> np.ndarray:
         """bool [H, W]: cells whose log-odds exceed the occupied threshold."""
@@ -246,5 +295,5 @@ class OccupancyGrid:
         it gives its arrays away and cannot be used after (a building's map is ~160 MB, and
         the copy doubled it at the end of every pose-graph run)."""
         image = GridImage(data=self.log_odds, resolution_m=self.res, origin_xy=(float(self.origin[0]), float(self.origin[1])))
-        self.log_odds = self.field = None  # type: ignore[assignment]
+        self.log_odds = self.field = self.hit_dx = self.hit_dy = self.hit_n = None  # type: ignore[assignment]
         return image

@@ -36,12 +36,14 @@ class LocalSlam:
     """The chain poses, the submaps and (local_map=map) the online map (see module doc)."""
 
     def __init__(self, matcher: LikelihoodFieldMatcher, settings: MapSettings, submaps: Submaps, local_map: str,
-                 start: FloatArray, scale_gain_per_m: float = 0.0, step_matcher: LikelihoodFieldMatcher | None = None) -> None:
+                 start: FloatArray, scale_gain_per_m: float = 0.0, step_matcher: LikelihoodFieldMatcher | None = None,
+                 walls_at_hits: bool = False) -> None:
         self.matcher = matcher
         self.step_matcher = step_matcher or matcher  # each node's own match (`step`): `filter.local_yaw_half_width_rad`
         self.scale_gain_per_m = float(scale_gain_per_m)  # `motion.scale_gain_per_m`: 0 = the odometry as it is
         self.scale = np.ones(1)  # the learnt odometry scale (`slam.odometry_scale`)
         self.settings = settings
+        self.walls_at_hits = walls_at_hits  # the online map's walls at their hits' mean (`filter.wall_at`)
         self.submaps = submaps
         self.grid = self._new_grid((float(start[0]), float(start[1]))) if local_map == "map" else None
         self.chain = np.asarray(start, dtype=np.float64).copy()  # the newest node's chain pose (local frame)
@@ -63,7 +65,7 @@ class LocalSlam:
         """After the scans between steps: nothing here (the particle tracker resamples)."""
 
     def _new_grid(self, start_xy: tuple[float, float]) -> OccupancyGrid:
-        return OccupancyGrid(self.settings, start_xy, self.matcher.field_sigma_m, self.matcher.field_radius_m)
+        return OccupancyGrid(self.settings, start_xy, self.matcher.field_sigma_m, self.matcher.field_radius_m, self.walls_at_hits)
 
     def _match(self, grid: OccupancyGrid, predicted: FloatArray, scan: ScanPoints) -> FloatArray:
         return self.step_matcher.match_scans_on(grid, predicted.reshape(1, 3), ScanBatch.of([scan]))[0][0]
@@ -170,5 +172,5 @@ class LocalSlam:
         self.grid = None
 
     def memory_mb(self) -> float:
-        own = 0 if self.grid is None else self.grid.log_odds.nbytes + (self.grid.field.nbytes if self.grid.field is not None else 0)
+        own = 0 if self.grid is None else self.grid.nbytes
         return own / 1e6 + self.submaps.memory_mb()

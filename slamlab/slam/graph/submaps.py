@@ -124,7 +124,7 @@ class Submaps:
     """The active submaps and the finished ones (see module doc)."""
 
     def __init__(self, settings: MapSettings, nodes_per_submap: int, field_sigma_m: float, field_radius_m: float, overlap: bool = True,
-                 field_when_finished: bool = False) -> None:
+                 field_when_finished: bool = False, walls_at_hits: bool = False) -> None:
         self.settings = settings
         self.n = int(nodes_per_submap)
         # two active at once (a new one every n / 2 nodes), or one (a new one every n nodes: when
@@ -135,6 +135,7 @@ class Submaps:
         # when no scan is matched against an active submap (local_map=map), its likelihood field is
         # computed once when it is finished instead of scan by scan (the same values: grid.start_field)
         self.field_when_finished = field_when_finished
+        self.walls_at_hits = walls_at_hits  # each wall's field peak at its hits' mean (`grid.OccupancyGrid`)
         self.active: list[ActiveSubmap] = []
         self.finished: list[FinishedSubmap] = []
         self.anchors: list[int] = []  # submap index -> anchor node
@@ -171,7 +172,7 @@ class Submaps:
         if not self.active or self.active[-1].count >= self.start_every:
             index = len(self.anchors)
             grid = OccupancyGrid(self._submap_settings(), (float(local_pose[0]), float(local_pose[1])),
-                                 0.0 if self.field_when_finished else self.sigma, self.radius)
+                                 0.0 if self.field_when_finished else self.sigma, self.radius, self.walls_at_hits)
             self.active.append(ActiveSubmap(index, node, np.asarray(local_pose, dtype=np.float64).copy(), grid))
             self.anchors.append(node)
         if len(scan.xy):
@@ -203,7 +204,7 @@ class Submaps:
             g.start_field(self.sigma, self.radius)
         assert g.field is not None
         known = np.flatnonzero(g.log_odds.any(axis=1)), np.flatnonzero(g.log_odds.any(axis=0))
-        R = int(g.kernel.shape[0] // 2) if g.kernel is not None else 0
+        R = g.field_radius
         H, W = g.shape
         if len(known[0]):
             r0, r1 = max(int(known[0][0]) - R, 0), min(int(known[0][-1]) + R + 1, H)
@@ -232,5 +233,5 @@ class Submaps:
 
     def memory_mb(self) -> float:
         """MB held: the active submaps' grids, the finished ones packed, and those unpacked."""
-        active = sum(s.grid.log_odds.nbytes + (s.grid.field.nbytes if s.grid.field is not None else 0) for s in self.active)
+        active = sum(s.grid.nbytes for s in self.active)
         return (active + self._packed_bytes + self._arrays.nbytes + self._grids.nbytes) / 1e6
