@@ -24,6 +24,7 @@ from slamlab.slam.engine import run_slam
 from slamlab.slam.graph.branch_bound import NO_EXCLUSION, CorrelativeSearch, SearchGrid, SearchWindow, bnb_search, exhaustive_search, max_pool_levels, place_points
 from slamlab.slam.graph.loops import ACCEPTED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
+from slamlab.slam.graph.submaps import search_grid_of
 from slamlab.slam.graph.run import _try_group
 from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, consistency_matrix, max_clique, tied_distances
 from test_slam_engine import _cfg
@@ -55,6 +56,21 @@ def test_branch_and_bound_returns_the_exhaustive_searchs_best_on_random_maps_and
         # the same candidate (ties go to the smallest yaw index, then dx, then dy) and the
         # same integer score, bit for bit
         assert (score, k, dx, dy) == exhaustive_search(grid, rows, cols, wx, wy)
+
+
+@pytest.mark.parametrize("f", [1, 2, 3])
+def test_a_submaps_search_grid_holds_the_largest_field_code_of_each_block_of_cells(f):
+    """`search_grid_of`: the coarse grid's cell (i, j) is the max over map cells [f i, f i + f) x
+    [f j, f j + f) (cells off the map: 0), the search's level 0, at each level's padding."""
+    rng = np.random.default_rng(f)
+    field_u8 = (rng.random((37, 23)) * 255).astype(np.uint8)
+    grid = search_grid_of(field_u8, np.array([1.0, -2.0]), 0.05, 0.05 * f, 3)
+    pad = (1 << 2) - 1
+    level0 = grid.pool[0, pad:, pad:]
+    assert level0.shape == (-(-37 // f), -(-23 // f)) and grid.resolution_m == pytest.approx(0.05 * f)
+    for i in range(level0.shape[0]):
+        for j in range(level0.shape[1]):
+            assert level0[i, j] == field_u8[f * i:f * i + f, f * j:f * j + f].max()
 
 
 def test_branch_and_bound_finds_a_scan_in_a_room_scoring_a_fraction_of_the_candidates():

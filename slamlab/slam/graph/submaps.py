@@ -103,7 +103,12 @@ def search_grid_of(field_u8: np.ndarray, origin: FloatArray, res_m: float, searc
     Hc, Wc = -(-H // f), -(-W // f)
     padded = np.zeros((Hc * f, Wc * f), dtype=np.uint8)
     padded[:H, :W] = field_u8
-    coarse = padded.reshape(Hc, f, Wc, f).max(axis=(1, 3))
+    # the block maxima as the max of f x f strided views: the same values as reshaping to
+    # (Hc, f, Wc, f) and reducing over axes 1 and 3, which numpy does ~20x slower
+    coarse = padded[0::f, 0::f].copy()
+    for i in range(f):
+        for j in range(f):
+            np.maximum(coarse, padded[i::f, j::f], out=coarse)
     return SearchGrid.of(coarse, (float(origin[0]), float(origin[1])), f * res_m, levels)
 
 
