@@ -324,7 +324,11 @@ class GraphFilterConfig:
     # against 0.018 m, 5-10x the time; benchmarks/RESULTS.md), kept as the "loop closure for the RBPF" experiment
     wall_at: str = "centre"  # where a wall's likelihood-field peak sits in its cell, in the online map and the submaps:
     # `centre` (the cell's centre) or `hits` (the mean of the scan hits that fell in it, to 1/9 of a cell: slam/raycast.note_hits;
-    # three bytes more a cell of those grids). Walls at cell centres stand up to half a cell inside the surface they map
+    # three bytes more a cell of those grids). Walls at cell centres stand up to half a cell inside the surface they map.
+    # `centre` by measurement (2026-11-29, bench_graph.py, benchmarks/RESULTS.md): `hits` makes the smoothed path better on
+    # Intel (worst 0.0206 -> 0.0186 m at 0.5 m steps) and sim_loops 2.0 (mean ATE over seeds 0-9 0.30 -> 0.21 m), but the
+    # online path worse on both logs (ACES worst causal 0.045 -> 0.071 m: its online heading drifts 1-4 degrees before
+    # the loop closes, against under 1), and a corridor probe lost a loop
     redraw_m: float = 0.15  # local_map=map: when the graph puts the robot this far (m) or redraw_rad from where the
     redraw_rad: float = 0.035  # local map has it, the map is drawn again from the graph (the online pose jumps to the graph's).
     # 0.15 against 0.3 (bench_graph.py, 2026-11-29): ACES worst causal 0.0399 / 0.0382 m at 0.5 / 0.25 m steps (0.0417 /
