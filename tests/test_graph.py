@@ -337,6 +337,29 @@ def test_a_run_cut_short_gives_the_same_online_poses_up_to_its_end(loop_log, gra
     assert cut.causal.tobytes() == full.causal[:n].tobytes()
 
 
+@pytest.mark.parametrize("wall_at", ["centre", "hits"])
+def test_filter_wall_at_reaches_the_online_map_and_the_submaps(loop_log, wall_at):
+    """`filter.wall_at` picks where every grid with a likelihood field for matching puts its walls:
+    the online map and each submap (the final map, drawn once, keeps no hit offsets)."""
+    from slamlab.slam import grid as grid_module
+
+    made = []
+    init = grid_module.OccupancyGrid.__init__
+
+    def record(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        made.append(self)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(grid_module.OccupancyGrid, "__init__", record)
+        _run(loop_log, f"filter.wall_at={wall_at}", "steps.max_scans=400")
+    online = [g for g in made if g.bank is not None and g.s.initial_size_m > 1.0]
+    subs = [g for g in made if g.s.initial_size_m == 1.0]  # submaps start at 1 m (`Submaps._submap_settings`)
+    assert online and len(subs) >= 2
+    assert all(g.walls_at_hits == (wall_at == "hits") for g in online + subs)
+    assert all((g.hit_n.size > 0) == (wall_at == "hits") for g in online + subs if g.hit_n is not None)
+
+
 @pytest.mark.slow
 def test_the_same_config_gives_the_same_bytes(loop_log, graph_run):
     a, b = graph_run[0], _run(loop_log)

@@ -9,10 +9,8 @@ import numpy as np
 import pytest
 
 from slamlab.config.slam import MapConfig
-from slamlab.slam.grid import OccupancyGrid
-from slamlab.slam.raycast import HIT_UNITS, WALL_STEPS, raycast_update, update_field
-
-_NO_FLIP = (np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1)
+from slamlab.slam.grid import NO_FLIP, OccupancyGrid
+from slamlab.slam.raycast import HIT_COUNT_CAP, HIT_UNITS, WALL_STEPS, raycast_update, update_field
 
 
 def _random_scan(rng: np.random.Generator, spread_m: float, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -27,7 +25,7 @@ def _reference_insert(g: OccupancyGrid, lo: np.ndarray, field: np.ndarray, senso
     s = g.s
     rows, cols = g.cells(pts)
     sr, sc = g.cells(sensor.reshape(1, 2))
-    flip = np.array(_NO_FLIP, dtype=np.int64)
+    flip = np.array(NO_FLIP, dtype=np.int64)
     raycast_update(lo, int(sr[0]), int(sc[0]), rows, cols, np.float32(s.log_odds_occupied), np.float32(s.log_odds_free),
                    np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold), flip)
     if flip[1] >= 0:
@@ -191,7 +189,7 @@ def _brute_force_field(g: OccupancyGrid, sigma_m: float, radius_m: float) -> np.
     by its mean hit offset, rounded to the nearest of WALL_STEPS places a side."""
     res, R = g.res, int(np.ceil(radius_m / g.res))
     walls = np.argwhere(g.log_odds > g.s.occupied_threshold)
-    place = lambda o: ((np.floor((o.astype(np.int64) + HIT_UNITS // 2) * WALL_STEPS / HIT_UNITS) + 0.5) / WALL_STEPS - 0.5)
+    place = lambda o: ((np.floor((int(o) + HIT_UNITS / 2) / HIT_UNITS * WALL_STEPS) + 0.5) / WALL_STEPS - 0.5)
     out = np.zeros(g.shape)
     for r, c in walls:
         px, py = c + place(g.hit_dx[r, c]), r + place(g.hit_dy[r, c])  # the wall's place (cells)
@@ -209,10 +207,10 @@ def test_walls_at_hits_keep_the_mean_of_their_hits_and_the_field_peaks_there():
     g = OccupancyGrid(MapConfig(initial_size_m=4.0), (0.0, 0.0), 0.05, 0.2, walls_at_hits=True)
     r, c = 40, 40
     centre = g.origin + (np.array([c, r]) + 0.5) * g.res
-    offsets = np.array([0.3, -0.2]) + rng.uniform(-0.15, 0.15, (20, 2))  # cells
+    offsets = np.array([0.3, -0.2]) + rng.uniform(-0.15, 0.15, (HIT_COUNT_CAP, 2))  # cells: up to the cap, a plain mean
     for o in offsets:
         g.insert(centre + np.array([-1.0, 0.3]), (centre + o * g.res).reshape(1, 2))
-    assert g.hit_n[r, c] == 20
+    assert g.hit_n[r, c] == HIT_COUNT_CAP
     mean = offsets.mean(axis=0) * HIT_UNITS
     assert abs(g.hit_dx[r, c] - mean[0]) <= 1.5 and abs(g.hit_dy[r, c] - mean[1]) <= 1.5
     assert g.field[r, c + 1] > g.field[r, c - 1] and g.field[r - 1, c] > g.field[r + 1, c]
@@ -226,16 +224,31 @@ def test_walls_at_hits_field_kept_scan_by_scan_equals_its_definition():
     rng = np.random.default_rng(8)
     g = OccupancyGrid(MapConfig(initial_size_m=12.0), (0.0, 0.0), 0.1, 0.3, walls_at_hits=True)
     moved = 0
+    place = lambda a: (a.astype(np.int64) + HIT_UNITS // 2) * WALL_STEPS // HIT_UNITS
     for i in range(150):
         sensor, pts = _random_scan(rng, 2.0, 4.0)
         if i % 3 == 0:
             pts = np.round(pts, 1) + rng.normal(0.0, 0.01, pts.shape)  # the same cells hit again, at other places within them
-        places = g.hit_dx.copy(), g.hit_dy.copy()
+        before = place(g.hit_dx), place(g.hit_dy), g.log_odds > g.s.occupied_threshold
         g.insert(sensor, pts)
-        moved += int(np.count_nonzero((g.hit_dx != places[0]) & (g.log_odds > 0)))
+        moved += int(np.count_nonzero(((place(g.hit_dx) != before[0]) | (place(g.hit_dy) != before[1])) & before[2]))
         ref = np.zeros(g.shape, dtype=np.float32)
         update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.bank, g.hit_dx, g.hit_dy, 0, g.shape[0], 0, g.shape[1])
         assert np.array_equal(g.field, ref), f"field differs after scan {i}"
         if i % 50 == 49:
             assert np.allclose(g.field, _brute_force_field(g, 0.1, 0.3), atol=1e-6)
-    assert moved > 100  # walls did move within their cells
+    assert moved > 50  # walls did move within their cells
+
+
+def test_a_wall_seen_long_follows_its_newest_hits_past_the_count_cap():
+    """Past HIT_COUNT_CAP hits a cell's mean is a moving average: a wall hit many times at its
+    centre, then many times 0.3 cells off, ends within the rounding's dead band (about half the
+    cap, in 1/HIT_UNITS of a cell) of the new offset, not stuck near the old one."""
+    g = OccupancyGrid(MapConfig(initial_size_m=4.0), (0.0, 0.0), 0.05, 0.2, walls_at_hits=True)
+    r, c = 40, 40
+    centre = g.origin + (np.array([c, r]) + 0.5) * g.res
+    for offset in [0.0] * 3 * HIT_COUNT_CAP + [0.3] * 20 * HIT_COUNT_CAP:
+        g.insert(centre + np.array([-1.0, 0.0]), (centre + np.array([offset, 0.0]) * g.res).reshape(1, 2))
+    assert g.hit_n[r, c] == HIT_COUNT_CAP
+    # within half a place of it (the place the field uses), where the dead band of a longer mean would leave it
+    assert abs(int(g.hit_dx[r, c]) - 0.3 * HIT_UNITS) < HIT_UNITS / WALL_STEPS / 2 and g.hit_dy[r, c] == 0

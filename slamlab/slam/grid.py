@@ -5,9 +5,9 @@ as `frames.GridImage`. When a scan would fall off the grid, the grid is enlarged
 side by the scan's overshoot plus `growth_margin_m`, so no part of a long log is lost and
 growth (a copy) happens rarely. Optionally the grid also keeps a likelihood field (a
 Gaussian of the distance to the nearest occupied cell) for scan matching, recomputed only
-where a scan changed which cells are occupied. With `walls_at_hits` each wall's Gaussian is
-centred where the scan hits in its cell fell on average, not at the cell's centre
-(`raycast.note_hits`).
+where a scan changed which cells are occupied (or, with `walls_at_hits`, where a wall moved
+within its cell: each wall's Gaussian is then centred where the scan hits in its cell fell on
+average, not at the cell's centre; `raycast.note_hits`).
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ MapSettings = MapConfig
 
 
 NO_CELLS = np.empty((0, 2), dtype=np.int64)  # `note_hits` with nowhere to list moved walls (no field to keep)
+NO_FLIP = (np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1)  # an empty box of changed cells (`raycast_update`)
 RELEASE_BAND_BYTES = 4 << 20  # `_copy_into` gives an old array over twice this size back in bands of about this size
 
 
@@ -94,8 +95,9 @@ class OccupancyGrid:
         n = max(int(np.ceil(settings.initial_size_m / self.res)), 8)
         self.origin = np.array([center_xy[0] - n * self.res / 2.0, center_xy[1] - n * self.res / 2.0])
         self.log_odds = np.zeros((n, n), dtype=np.float32)
-        self.bank: np.ndarray | None = None  # the field's kernels: one, or one per place in a cell (walls_at_hits)
+        self.bank: np.ndarray | None = None  # the field's kernels [S, S, 2R+1, 2R+1]: one, or one per place in a cell
         self.field: np.ndarray | None = None
+        self.walls_at_hits = walls_at_hits
         # each cell's mean hit offset from its centre (int8, 1/256 cell) and hit count; empty: walls at cell centres
         shape = (n, n) if walls_at_hits else (0, 0)
         self.hit_dx = np.zeros(shape, dtype=np.int8)
@@ -112,10 +114,6 @@ class OccupancyGrid:
         return self.log_odds.shape  # type: ignore[return-value]
 
     @property
-    def walls_at_hits(self) -> bool:
-        return self.hit_n.size > 0
-
-    @property
     def nbytes(self) -> int:
         """Bytes the grid's arrays hold: log-odds, field, hit offsets."""
         arrays = (self.log_odds, self.field, self.hit_dx, self.hit_dy, self.hit_n)
@@ -125,7 +123,7 @@ class OccupancyGrid:
     def field_radius(self) -> int:
         """The field kernel's radius R (cells): a wall reaches R cells."""
         assert self.bank is not None, "grid built without a likelihood field"
-        return self.bank.shape[1] // 2
+        return self.bank.shape[2] // 2
 
     def _start_bank(self, field_sigma_m: float, field_radius_m: float) -> None:
         steps = WALL_STEPS if self.walls_at_hits else 1
@@ -213,7 +211,7 @@ class OccupancyGrid:
         args = (self.log_odds, int(sr[0]), int(sc[0]), rows, cols, np.float32(s.log_odds_occupied), np.float32(s.log_odds_free),
                 np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold))
         if self.field is None:
-            raycast_update(*args, np.array([np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1], dtype=np.int64))
+            raycast_update(*args, np.array(NO_FLIP, dtype=np.int64))
             self._note_hits(points_xy, rows, cols, NO_CELLS)
             return
         flips = self._flips if len(self._flips) >= 5 * len(rows) + 64 else np.empty((5 * len(rows) + 64, 2), dtype=np.int64)
@@ -224,8 +222,8 @@ class OccupancyGrid:
         if n_free + n_occ > room:  # more changes than room: the field again over their box, as before
             self._refresh_field(self.field, 0, self.shape[0], 0, self.shape[1])
             return
-        freed = flips[:n_free] if n_moved == 0 else np.concatenate([flips[:n_free], flips[room:room + n_moved]])
-        self._update_field(freed, flips[n_free:n_free + n_occ])
+        stale = flips[:n_free] if n_moved == 0 else np.concatenate([flips[:n_free], flips[room:room + n_moved]])
+        self._update_field(stale, flips[n_free:n_free + n_occ])
 
     def insert_many(self, sensors_xy: FloatArray, points_xy: list[FloatArray]) -> None:
         """Ray-cast many scans (sensor positions (K, 2) m, world hit points, one (M, 2) array
@@ -238,7 +236,7 @@ class OccupancyGrid:
         ys = np.concatenate([p[:, 1] for p in points_xy] + [sensors_xy[:, 1]])
         self.ensure(xs.min(), ys.min(), xs.max(), ys.max())
         s = self.s
-        flip = np.array([np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1], dtype=np.int64)
+        flip = np.array(NO_FLIP, dtype=np.int64)
         for sensor, pts in zip(sensors_xy, points_xy):
             if len(pts) == 0:
                 continue
@@ -260,20 +258,20 @@ class OccupancyGrid:
                              np.ascontiguousarray(points_xy[:, 0]), np.ascontiguousarray(points_xy[:, 1]), float(self.origin[0]),
                              float(self.origin[1]), 1.0 / self.res, rows, cols, WALL_STEPS, moved))
 
-    def _update_field(self, freed: np.ndarray, occupied: np.ndarray) -> None:
-        """The field after cells turned free or their wall moved in the cell (`freed`) and cells
-        turned occupied (`occupied`), (K, 2) rows and cols: around freed cells it is recomputed
-        (a wall value there may have gone), then it is raised around the new walls. The same
-        values as recomputing the box of every changed cell, which is what this replaced
-        (tested), in a fraction of the reads."""
+    def _update_field(self, stale: np.ndarray, occupied: np.ndarray) -> None:
+        """The field after cells turned free or their wall moved within the cell (`stale`) and
+        cells turned occupied (`occupied`), (K, 2) rows and cols: around stale cells it is
+        recomputed (a wall value there may have gone), then it is raised around the new walls.
+        The same values as recomputing the box of every changed cell, which is what this
+        replaced (tested), in a fraction of the reads."""
         R = self.field_radius
         H, W = self.shape
-        if len(freed):
-            r0, c0 = freed.min(axis=0)
-            r1, c1 = freed.max(axis=0)
+        if len(stale):
+            r0, c0 = stale.min(axis=0)
+            r1, c1 = stale.max(axis=0)
             box = (r1 - r0 + 2 * R + 1) * (c1 - c0 + 2 * R + 1)
-            if len(freed) * (2 * R + 1) ** 2 < box:  # a few cells far apart (long beams): each one's neighbourhood
-                refresh_cells(self.log_odds, self.field, np.float32(self.s.occupied_threshold), self.bank, self.hit_dx, self.hit_dy, freed)
+            if len(stale) * (2 * R + 1) ** 2 < box:  # a few cells far apart (long beams): each one's neighbourhood
+                refresh_cells(self.log_odds, self.field, np.float32(self.s.occupied_threshold), self.bank, self.hit_dx, self.hit_dy, stale)
             else:
                 self._refresh_field(self.field, max(r0 - R, 0), min(r1 + R + 1, H), max(c0 - R, 0), min(c1 + R + 1, W))
         if len(occupied):

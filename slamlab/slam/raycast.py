@@ -146,45 +146,42 @@ def raycast_update_noting(lo, r0, c0, rows, cols, l_occ, l_free, lmin, lmax, thr
 
 # Walls at their hits (`OccupancyGrid(walls_at_hits=True)`): each cell keeps the running mean of
 # where in it the scan hits fell, in 1/HIT_UNITS of a cell from its centre (int8 x, y) and how many
-# (uint8, counted up to HIT_COUNT_CAP: then the mean follows the newest hits as a moving average).
+# (uint8, counted up to HIT_COUNT_CAP: then each hit weighs 1/(cap + 1), a moving average). The
+# mean is rounded to whole units after each hit, so a hit moves it only when it lies more than
+# about n/2 units away: the cap keeps that dead band (8 units, 1/32 of a cell) below half a place.
 # Its field kernel is centred there, at the nearest of WALL_STEPS x WALL_STEPS places in the cell
 # (`kernel_bank`). Walls at cell centres sit up to half a cell inside the surface they stand for,
 # so a corridor maps half a cell to a cell too narrow, and a scan seeing a few metres of wall at an
 # angle matches turned by a fraction of a degree (benchmarks/RESULTS.md, 2026-11-29).
 HIT_UNITS = 256
-HIT_COUNT_CAP = 64
+HIT_COUNT_CAP = 16
 WALL_STEPS = 9  # odd: the middle place is the centre
 
 
 @numba.njit(cache=True, inline="always")
-def _place(ox, oy, r, c, steps):
-    """Which kernel of the bank a wall at (r, c) takes: 0 when no hit offsets are kept (`ox`
-    empty, walls at cell centres), else the place nearest its mean hit offset."""
-    if ox.shape[0] == 0:
-        return 0
-    qx = ((np.int64(ox[r, c]) + HIT_UNITS // 2) * steps) // HIT_UNITS
-    qy = ((np.int64(oy[r, c]) + HIT_UNITS // 2) * steps) // HIT_UNITS
-    return qy * steps + qx
-
-
-@numba.njit(cache=True, inline="always")
-def _steps(bank):
-    """The bank's places per axis (it holds steps x steps kernels)."""
-    return int(np.sqrt(bank.shape[0]) + 0.5)
+def _place(hit_dx, hit_dy, r, c, steps):
+    """The place (qy, qx) in a bank of steps x steps kernels of a wall at (r, c): the one nearest
+    its mean hit offset, or the middle one when no hit offsets are kept (`hit_dx` empty: walls
+    at cell centres)."""
+    if hit_dx.shape[0] == 0:
+        return steps // 2, steps // 2
+    qx = ((np.int64(hit_dx[r, c]) + HIT_UNITS // 2) * steps) // HIT_UNITS
+    qy = ((np.int64(hit_dy[r, c]) + HIT_UNITS // 2) * steps) // HIT_UNITS
+    return qy, qx
 
 
 @numba.njit(cache=True)
-def raise_field(field, bank, ox, oy, cells):
+def raise_field(field, bank, hit_dx, hit_dy, cells):
     """Raise the field to each cell's kernel (`bank`, at the cell's place: `_place`) around each
     cell of `cells` (K, 2: row, col): what a cell turning occupied adds to the field (values
     only rise, so the order does not matter)."""
     H, W = field.shape
-    R = bank.shape[1] // 2
-    steps = _steps(bank)
+    R = bank.shape[2] // 2
     for i in range(cells.shape[0]):
         r = cells[i, 0]
         c = cells[i, 1]
-        kernel = bank[_place(ox, oy, r, c, steps)]
+        qy, qx = _place(hit_dx, hit_dy, r, c, bank.shape[0])
+        kernel = bank[qy, qx]
         for rr in range(max(r - R, 0), min(r + R + 1, H)):
             for cc in range(max(c - R, 0), min(c + R + 1, W)):
                 v = kernel[rr - r + R, cc - c + R]
@@ -193,30 +190,29 @@ def raise_field(field, bank, ox, oy, cells):
 
 
 @numba.njit(cache=True)
-def refresh_cells(lo, field, thresh, bank, ox, oy, cells):
+def refresh_cells(lo, field, thresh, bank, hit_dx, hit_dy, cells):
     """`update_field` over the (2R+1)^2 neighbourhood of each cell of `cells` (K, 2: row,
     col), one after the other: the field around cells that turned free or whose wall moved
     (their value may have come from them), without recomputing the box spanning all of them."""
     H, W = lo.shape
-    R = bank.shape[1] // 2
+    R = bank.shape[2] // 2
     for i in range(cells.shape[0]):
         r = cells[i, 0]
         c = cells[i, 1]
-        update_field(lo, field, thresh, bank, ox, oy, max(r - R, 0), min(r + R + 1, H), max(c - R, 0), min(c + R + 1, W))
+        update_field(lo, field, thresh, bank, hit_dx, hit_dy, max(r - R, 0), min(r + R + 1, H), max(c - R, 0), min(c + R + 1, W))
 
 
 @numba.njit(cache=True)
-def update_field(lo, field, thresh, bank, ox, oy, r0, r1, c0, c1):
+def update_field(lo, field, thresh, bank, hit_dx, hit_dy, r0, r1, c0, c1):
     """Recompute the likelihood field `field` (float32 [H, W]) in rows [r0, r1), cols
     [c0, c1): each cell gets the max over occupied cells (`lo > thresh`) within R cells of
-    their kernel (`bank` float32 [P, 2R+1, 2R+1], e.g. a Gaussian of the distance, at the
-    wall's place: `_place`). Cells outside the box are unchanged, so a caller recomputes only
+    their kernel (`bank` float32 [S, S, 2R+1, 2R+1], e.g. a Gaussian of the distance, at the
+    wall's place: `_place`; S = 1: at cell centres). Cells outside the box are unchanged, so a caller recomputes only
     where the occupancy changed (plus R).
     A cell already 0 is not written: a zero page of a building's map (far from any wall) then
     stays a page the system never backs, where a write would make it resident."""
     H, W = lo.shape
-    R = bank.shape[1] // 2
-    steps = _steps(bank)
+    R = bank.shape[2] // 2
     for r in range(r0, r1):
         for c in range(c0, c1):
             if field[r, c] != 0.0:
@@ -224,7 +220,8 @@ def update_field(lo, field, thresh, bank, ox, oy, r0, r1, c0, c1):
     for r in range(max(r0 - R, 0), min(r1 + R, H)):
         for c in range(max(c0 - R, 0), min(c1 + R, W)):
             if lo[r, c] > thresh:
-                kernel = bank[_place(ox, oy, r, c, steps)]
+                qy, qx = _place(hit_dx, hit_dy, r, c, bank.shape[0])
+                kernel = bank[qy, qx]
                 for rr in range(max(r - R, r0), min(r + R + 1, r1)):
                     for cc in range(max(c - R, c0), min(c + R + 1, c1)):
                         v = kernel[rr - r + R, cc - c + R]
@@ -241,25 +238,25 @@ def _mean_step(old, offset, n):
 
 
 @numba.njit(cache=True)
-def note_hits(lo, thresh, ox, oy, hn, xs, ys, x0, y0, inv_res, rows, cols, steps, moved):
+def note_hits(lo, thresh, hit_dx, hit_dy, hit_n, xs, ys, x0, y0, inv_res, rows, cols, steps, moved):
     """Take each hit (world xs, ys m; in cell rows, cols of a grid with origin x0, y0 and 1 / res
-    `inv_res`) into its cell's mean hit offset (`ox`, `oy` int8 in 1/HIT_UNITS of a cell, `hn`
-    the count). Cells that are walls (`lo > thresh`) and whose place (`_place`) changed are
-    listed in `moved` (K, 2) while there is room; returns how many (a count over K says some
-    were not kept; an empty `moved` lists none: no field to keep)."""
+    `inv_res`) into its cell's mean hit offset (`hit_dx`, `hit_dy` int8 in 1/HIT_UNITS of a cell,
+    `hit_n` the count). Cells that are walls (`lo > thresh`) and whose place among steps x steps
+    (`_place`) changed are listed in `moved` (K, 2) while there is room; returns how many (a count
+    over K says some were not kept; an empty `moved` lists none: no field to keep)."""
     m = 0
     for k in range(rows.shape[0]):
         r = rows[k]
         c = cols[k]
         u = ((xs[k] - x0) * inv_res - c - 0.5) * HIT_UNITS
         v = ((ys[k] - y0) * inv_res - r - 0.5) * HIT_UNITS
-        before = _place(ox, oy, r, c, steps)
-        n = np.int64(hn[r, c]) + 1
-        ox[r, c] = _mean_step(np.int64(ox[r, c]), u, n)
-        oy[r, c] = _mean_step(np.int64(oy[r, c]), v, n)
+        before = _place(hit_dx, hit_dy, r, c, steps)
+        n = np.int64(hit_n[r, c]) + 1
+        hit_dx[r, c] = _mean_step(np.int64(hit_dx[r, c]), u, n)
+        hit_dy[r, c] = _mean_step(np.int64(hit_dy[r, c]), v, n)
         if n <= HIT_COUNT_CAP:
-            hn[r, c] = n
-        if moved.shape[0] > 0 and lo[r, c] > thresh and _place(ox, oy, r, c, steps) != before:
+            hit_n[r, c] = n
+        if moved.shape[0] > 0 and lo[r, c] > thresh and _place(hit_dx, hit_dy, r, c, steps) != before:
             if m < moved.shape[0]:
                 moved[m, 0] = r
                 moved[m, 1] = c
@@ -306,8 +303,8 @@ def gaussian_kernel(sigma_cells: float, radius_cells: int, offset_xy: tuple[floa
 
 
 def kernel_bank(sigma_cells: float, radius_cells: int, steps: int) -> np.ndarray:
-    """float32 [steps^2, 2R+1, 2R+1]: `gaussian_kernel` centred at each of steps x steps places
-    in the cell (offsets (i + 0.5) / steps - 0.5 cells, index qy * steps + qx; `_place` picks
-    one). steps=1: the one kernel at the centre."""
+    """float32 [steps, steps, 2R+1, 2R+1]: [qy, qx] is `gaussian_kernel` centred at offset
+    ((qx + 0.5) / steps - 0.5, (qy + 0.5) / steps - 0.5) cells from the cell's centre (`_place`
+    picks one). steps=1: the one kernel at the centre."""
     offsets = (np.arange(steps) + 0.5) / steps - 0.5
-    return np.stack([gaussian_kernel(sigma_cells, radius_cells, (float(dx), float(dy))) for dy in offsets for dx in offsets])
+    return np.stack([np.stack([gaussian_kernel(sigma_cells, radius_cells, (float(dx), float(dy))) for dx in offsets]) for dy in offsets])
