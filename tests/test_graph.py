@@ -7,6 +7,7 @@ where local SLAM alone ends up metres off and only loop closures keep the map to
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import math
 from pathlib import Path
@@ -25,6 +26,7 @@ from slamlab.slam.graph.branch_bound import NO_EXCLUSION, CorrelativeSearch, Sea
 from slamlab.slam.graph.loops import ACCEPTED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.submaps import search_grid_of
+from slamlab.slam.grid import OccupancyGrid
 from slamlab.slam.graph.run import _try_group
 from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, consistency_matrix, max_clique, tied_distances
 from test_slam_engine import _cfg
@@ -291,21 +293,26 @@ def _run(seq, *overrides: str):
     return run_slam(seq, build_components(_cfg(*GRAPH, *overrides)))
 
 
+@contextlib.contextmanager
+def _instances_of(cls: type):
+    """Every instance of `cls` made inside the block, in the list it yields."""
+    made: list = []
+    init = cls.__init__
+
+    def keep(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        made.append(self)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(cls, "__init__", keep)
+        yield made
+
+
 @pytest.fixture(scope="module")
 def graph_run(loop_log):
     """The graph filter's run on the log (shared by the tests below), and the pose graph it
     ended with."""
-    from slamlab.slam.graph import pose_graph
-
-    graphs = []
-    init = pose_graph.PoseGraph.__init__
-
-    def keep(self, *args, **kwargs):
-        init(self, *args, **kwargs)
-        graphs.append(self)
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(pose_graph.PoseGraph, "__init__", keep)
+    with _instances_of(PoseGraph) as graphs:
         result = _run(loop_log)
     return result, graphs[-1]
 
@@ -341,17 +348,7 @@ def test_a_run_cut_short_gives_the_same_online_poses_up_to_its_end(loop_log, gra
 def test_filter_wall_at_reaches_the_online_map_and_the_submaps(loop_log, wall_at):
     """`filter.wall_at` picks where every grid with a likelihood field for matching puts its walls:
     the online map and each submap (the final map, drawn once, keeps no hit offsets)."""
-    from slamlab.slam import grid as grid_module
-
-    made = []
-    init = grid_module.OccupancyGrid.__init__
-
-    def record(self, *args, **kwargs):
-        init(self, *args, **kwargs)
-        made.append(self)
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(grid_module.OccupancyGrid, "__init__", record)
+    with _instances_of(OccupancyGrid) as made:
         _run(loop_log, f"filter.wall_at={wall_at}", "steps.max_scans=400")
     online = [g for g in made if g.bank is not None and g.s.initial_size_m > 1.0]
     subs = [g for g in made if g.s.initial_size_m == 1.0]  # submaps start at 1 m (`Submaps._submap_settings`)
