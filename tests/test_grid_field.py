@@ -53,6 +53,13 @@ def test_incremental_field_equals_recomputing_the_changed_box():
     assert changed > 0  # the scans drew walls: the comparison saw a field
 
 
+def _field_recomputed(g: OccupancyGrid) -> np.ndarray:
+    """The grid's field recomputed over the whole grid from its log-odds (and hit offsets)."""
+    ref = np.zeros(g.shape, dtype=np.float32)
+    update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.bank, g.hit_dx, g.hit_dy, 0, g.shape[0], 0, g.shape[1])
+    return ref
+
+
 def _common_box(a: OccupancyGrid, b: OccupancyGrid) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
     """(log-odds, field) of both grids cut to the world area both cover (same resolution, cell-aligned)."""
     o = np.maximum(a.origin, b.origin)
@@ -127,8 +134,7 @@ def test_growing_keeps_every_cell_where_it_was_and_the_new_margins_empty(at_hits
     if at_hits:
         assert g.hit_n.shape == g.shape and not g.hit_n[margin].any() and g.hit_n.any()
     # the field: unchanged inside, and in the margins exactly what the walls near the old edges give
-    ref = np.zeros(g.shape, dtype=np.float32)
-    update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.bank, g.hit_dx, g.hit_dy, 0, g.shape[0], 0, g.shape[1])
+    ref = _field_recomputed(g)
     assert np.array_equal(g.field[:lo.shape[0], dc:dc + lo.shape[1]], field)
     assert np.array_equal(g.field, ref)
 
@@ -155,8 +161,7 @@ def test_a_large_grid_grows_as_np_pad_and_gives_the_old_memory_back_only_when_no
     assert np.array_equal(g.log_odds, np.pad(lo, ((0, 0), (dc, g.shape[1] - lo.shape[1] - dc))))
     assert np.array_equal(held, held_copy)  # not given back
     assert released and set(released) == {lo.shape}  # the log-odds (no one else held it) was
-    ref = np.zeros(g.shape, dtype=np.float32)
-    update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.bank, g.hit_dx, g.hit_dy, 0, g.shape[0], 0, g.shape[1])
+    ref = _field_recomputed(g)
     assert np.array_equal(g.field, ref)
 
 
@@ -232,8 +237,7 @@ def test_walls_at_hits_field_kept_scan_by_scan_equals_its_definition():
         before = place(g.hit_dx), place(g.hit_dy), g.log_odds > g.s.occupied_threshold
         g.insert(sensor, pts)
         moved += int(np.count_nonzero(((place(g.hit_dx) != before[0]) | (place(g.hit_dy) != before[1])) & before[2]))
-        ref = np.zeros(g.shape, dtype=np.float32)
-        update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.bank, g.hit_dx, g.hit_dy, 0, g.shape[0], 0, g.shape[1])
+        ref = _field_recomputed(g)
         assert np.array_equal(g.field, ref), f"field differs after scan {i}"
         if i % 50 == 49:
             assert np.allclose(g.field, _brute_force_field(g, 0.1, 0.3), atol=1e-6)

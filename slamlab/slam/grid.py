@@ -214,9 +214,11 @@ class OccupancyGrid:
             raycast_update(*args, np.array(NO_FLIP, dtype=np.int64))
             self._note_hits(points_xy, rows, cols, NO_CELLS)
             return
-        flips = self._flips if len(self._flips) >= 5 * len(rows) + 64 else np.empty((5 * len(rows) + 64, 2), dtype=np.int64)
+        moved_room = len(rows) if self.walls_at_hits else 0  # the last rows: the walls whose place in their cell moved
+        need = 4 * len(rows) + 64 + moved_room
+        flips = self._flips if len(self._flips) >= need else np.empty((need, 2), dtype=np.int64)
         self._flips = flips
-        room = len(flips) - len(rows)  # the last len(rows) rows: the walls whose place in their cell moved
+        room = len(flips) - moved_room
         n_free, n_occ = raycast_update_noting(*args, flips[:room])
         n_moved = self._note_hits(points_xy, rows, cols, flips[room:])
         if n_free + n_occ > room:  # more changes than room: the field again over their box, as before
@@ -254,9 +256,8 @@ class OccupancyGrid:
         (one row per hit: room for all; see `raycast.note_hits`) and returns how many."""
         if not self.walls_at_hits:
             return 0
-        return int(note_hits(self.log_odds, np.float32(self.s.occupied_threshold), self.hit_dx, self.hit_dy, self.hit_n,
-                             np.ascontiguousarray(points_xy[:, 0]), np.ascontiguousarray(points_xy[:, 1]), float(self.origin[0]),
-                             float(self.origin[1]), 1.0 / self.res, rows, cols, WALL_STEPS, moved))
+        return int(note_hits(self.log_odds, np.float32(self.s.occupied_threshold), self.hit_dx, self.hit_dy, self.hit_n, points_xy,
+                             float(self.origin[0]), float(self.origin[1]), 1.0 / self.res, rows, cols, WALL_STEPS, moved))
 
     def _update_field(self, stale: np.ndarray, occupied: np.ndarray) -> None:
         """The field after cells turned free or their wall moved within the cell (`stale`) and

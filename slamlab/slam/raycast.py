@@ -238,8 +238,8 @@ def _mean_step(old, offset, n):
 
 
 @numba.njit(cache=True)
-def note_hits(lo, thresh, hit_dx, hit_dy, hit_n, xs, ys, x0, y0, inv_res, rows, cols, steps, moved):
-    """Take each hit (world xs, ys m; in cell rows, cols of a grid with origin x0, y0 and 1 / res
+def note_hits(lo, thresh, hit_dx, hit_dy, hit_n, pts, x0, y0, inv_res, rows, cols, steps, moved):
+    """Take each hit (world points (M, 2) m; in cell rows, cols of a grid with origin x0, y0 and 1 / res
     `inv_res`) into its cell's mean hit offset (`hit_dx`, `hit_dy` int8 in 1/HIT_UNITS of a cell,
     `hit_n` the count). Cells that are walls (`lo > thresh`) and whose place among steps x steps
     (`_place`) changed are listed in `moved` (K, 2) while there is room; returns how many (a count
@@ -248,8 +248,8 @@ def note_hits(lo, thresh, hit_dx, hit_dy, hit_n, xs, ys, x0, y0, inv_res, rows, 
     for k in range(rows.shape[0]):
         r = rows[k]
         c = cols[k]
-        u = ((xs[k] - x0) * inv_res - c - 0.5) * HIT_UNITS
-        v = ((ys[k] - y0) * inv_res - r - 0.5) * HIT_UNITS
+        u = ((pts[k, 0] - x0) * inv_res - c - 0.5) * HIT_UNITS
+        v = ((pts[k, 1] - y0) * inv_res - r - 0.5) * HIT_UNITS
         before = _place(hit_dx, hit_dy, r, c, steps)
         n = np.int64(hit_n[r, c]) + 1
         hit_dx[r, c] = _mean_step(np.int64(hit_dx[r, c]), u, n)
