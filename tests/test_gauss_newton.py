@@ -44,7 +44,7 @@ def _bilinear(grid: OccupancyGrid, x: float, y: float, th: float, p: np.ndarray,
     v = (wy - grid.origin[1]) / grid.res - 0.5
     c0, r0 = int(np.floor(u)), int(np.floor(v))
     fu, fv = u - c0, v - r0
-    cells = grid.field[r0:r0 + 2, c0:c0 + 2].astype(np.float64)
+    cells = grid.field_values()[r0:r0 + 2, c0:c0 + 2].astype(np.float64)
     dist = np.where(cells > 0, sigma * np.sqrt(-2.0 * np.log(np.where(cells > 0, cells, 1.0))), cap)
     wts = np.array([[(1 - fv) * (1 - fu), (1 - fv) * fu], [fv * (1 - fu), fv * fu]])
     return float((wts * cells).sum()), float((wts * dist).sum())
@@ -62,10 +62,10 @@ def test_the_gradient_is_the_scores_derivative():
     rng = np.random.default_rng(4)
     for x, y, th in rng.normal(0.0, [0.06, 0.06, 0.03], (5, 3)):
         g, h = np.empty(3), np.empty(6)
-        s = field_gradient(grid.field, NO_POOL, NO_TABLE, NO_LUT, cap, sigma, grid.origin[0], grid.origin[1], 1.0 / grid.res, x, y, th, pts, 1 / sigma**2, g, h)
+        s = field_gradient(grid.field_cells, NO_POOL, NO_TABLE, NO_LUT, cap, sigma, grid.origin[0], grid.origin[1], 1.0 / grid.res, x, y, th, pts, 1 / sigma**2, g, h)
 
         def score(dx, dy, dt):
-            return score_field(grid.field, grid.origin[0], grid.origin[1], 1.0 / grid.res, x + dx, y + dy, th + dt, pts)
+            return score_field(grid.field_cells, grid.origin[0], grid.origin[1], 1.0 / grid.res, x + dx, y + dy, th + dt, pts)
 
         assert s == score(0, 0, 0)  # the points are placed as score_field places them
         e = 1e-6

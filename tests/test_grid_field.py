@@ -55,7 +55,7 @@ def test_incremental_field_equals_recomputing_the_changed_box():
 
 def _field_recomputed(g: OccupancyGrid) -> np.ndarray:
     """The grid's field recomputed over the whole grid from its log-odds (and hit offsets)."""
-    ref = np.zeros(g.shape, dtype=np.float32)
+    ref = np.zeros(g.shape, dtype=g.field.dtype)
     update_field(g.log_odds, ref, np.float32(g.s.occupied_threshold), g.bank, g.hit_dx, g.hit_dy, 0, g.shape[0], 0, g.shape[1])
     return ref
 
@@ -218,8 +218,9 @@ def test_walls_at_hits_keep_the_mean_of_their_hits_and_the_field_peaks_there():
     assert g.hit_n[r, c] == HIT_COUNT_CAP
     mean = offsets.mean(axis=0) * HIT_UNITS
     assert abs(g.hit_dx[r, c] - mean[0]) <= 1.5 and abs(g.hit_dy[r, c] - mean[1]) <= 1.5
-    assert g.field[r, c + 1] > g.field[r, c - 1] and g.field[r - 1, c] > g.field[r + 1, c]
-    assert np.allclose(g.field, _brute_force_field(g, 0.05, 0.2), atol=1e-6)
+    f = g.field_values()
+    assert f[r, c + 1] > f[r, c - 1] and f[r - 1, c] > f[r + 1, c]
+    assert np.allclose(f, _brute_force_field(g, 0.05, 0.2), atol=1e-6)
 
 
 def test_walls_at_hits_field_kept_scan_by_scan_equals_its_definition():
@@ -240,7 +241,7 @@ def test_walls_at_hits_field_kept_scan_by_scan_equals_its_definition():
         ref = _field_recomputed(g)
         assert np.array_equal(g.field, ref), f"field differs after scan {i}"
         if i % 50 == 49:
-            assert np.allclose(g.field, _brute_force_field(g, 0.1, 0.3), atol=1e-6)
+            assert np.allclose(g.field_values(), _brute_force_field(g, 0.1, 0.3), atol=1e-6)
     assert moved > 50  # walls did move within their cells
 
 
@@ -256,3 +257,25 @@ def test_a_wall_seen_long_follows_its_newest_hits_past_the_count_cap():
     assert g.hit_n[r, c] == HIT_COUNT_CAP
     # within half a place of it (the place the field uses), where the dead band of a longer mean would leave it
     assert abs(int(g.hit_dx[r, c]) - 0.3 * HIT_UNITS) < HIT_UNITS / WALL_STEPS / 2 and g.hit_dy[r, c] == 0
+
+
+@pytest.mark.parametrize("at_hits", [False, True])
+def test_the_field_kept_as_codes_holds_exactly_the_float32_field(at_hits):
+    """The grid keeps its field as codes of its kernels' values (one byte at cell centres, two
+    with walls at their hits) and the values they decode to are, bit for bit, the float32 field
+    the same kernels give computed on values; a matcher reads the same sums from either form."""
+    from slamlab.slam.matcher import score_field
+
+    rng = np.random.default_rng(9)
+    g = OccupancyGrid(MapConfig(initial_size_m=12.0), (0.0, 0.0), 0.1, 0.3, walls_at_hits=at_hits)
+    for _ in range(80):
+        g.insert(*_random_scan(rng, 2.0, 4.0))
+    assert g.field.dtype == (np.uint16 if at_hits else np.uint8)
+    values = np.zeros(g.shape, dtype=np.float32)
+    update_field(g.log_odds, values, np.float32(g.s.occupied_threshold), g.field_lut[g.bank], g.hit_dx, g.hit_dy, 0, g.shape[0], 0, g.shape[1])
+    assert np.count_nonzero(values) > 1000
+    assert np.array_equal(g.field_values(), values)
+    scan = _random_scan(rng, 0.0, 4.0)[1]
+    for x, y, th in rng.normal(0.0, [0.3, 0.3, 0.5], (20, 3)):
+        assert score_field(g.field_cells, g.origin[0], g.origin[1], 1.0 / g.res, x, y, th, scan) == \
+            score_field(values, g.origin[0], g.origin[1], 1.0 / g.res, x, y, th, scan)

@@ -93,7 +93,7 @@ def test_likelihood_field_is_right_after_the_grid_grows():
     update_field(g.log_odds, full, np.float32(g.s.occupied_threshold), g.bank, g.hit_dx, g.hit_dy, 0, H, 0, W)
     np.testing.assert_array_equal(g.field, full)
     r, c = g.cells(np.array([[-0.95, 0.0]]))  # a new cell one step left of the old wall
-    assert g.field[r[0], c[0]] > 0.5
+    assert g.field_values()[r[0], c[0]] > 0.5
 
 
 # ---------------------------------------------------------------- scan to points
@@ -658,7 +658,7 @@ def test_a_stretch_scores_its_wall_across_but_not_along():
     ext = surface_stretches(scan, 0.6, 0.1)
     assert (ext[1:4, 2:4] > 0).all()
     pts, e = np.ascontiguousarray(scan[2:3]), np.ascontiguousarray(ext[2:3])  # the hit at x = 5
-    args = (g.field, g.origin[0], g.origin[1], 1.0 / g.res)
+    args = (g.field_cells, g.origin[0], g.origin[1], 1.0 / g.res)
     point = [score_field(*args, dx, 0.0, 0.0, pts) for dx in (0.0, 1.0)]
     along = [score_stretches(*args, dx, 0.0, 0.0, pts, e) for dx in (0.0, 0.3, 0.6, 1.0)]
     assert point[0] < 0.05 < 0.8 < point[1]  # as a point: the comb
@@ -687,7 +687,7 @@ def test_a_stretch_reaches_each_neighbour_on_its_own_side():
     g.insert(np.zeros(2), np.array([[5.5, 1.4]]))
     scan = np.array([[2.0, 1.4], [4.0, 1.4], [8.0, 1.4]])
     ext = surface_stretches(scan, 0.6, 0.1)
-    args = (g.field, g.origin[0], g.origin[1], 1.0 / g.res)
+    args = (g.field_cells, g.origin[0], g.origin[1], 1.0 / g.res)
     pts, e = np.ascontiguousarray(scan[1:2]), np.ascontiguousarray(ext[1:2])
     assert score_stretches(*args, 0.0, 0.0, 0.0, pts, e) > 0.5  # 1.5 m after: inside the 2 m half-gap (0.2 m samples)
     flipped = e.copy()

@@ -13,7 +13,7 @@ start: the coarse grid's best offset.
 Against the hill climb (`refine: climb`: +-x, +-y, +-yaw moves, halving the step four
 times, ~56 scores per particle on Intel) it needs ~8 scores per particle, each a little
 dearer, and ends at a slightly higher S - P (Intel, 180 particle matches: +0.01 on average).
-`refine_pose` reads either a dense field (the shared map of `filter=course`) or a particle's
+`refine_pose` reads either a dense field (the shared map of `filter=course`, the graph's online map) or a particle's
 tiles (`filter=rbpf`, field codes decoded by `lut`, their d by `lut_d`).
 """
 
@@ -24,6 +24,7 @@ import math
 import numba
 import numpy as np
 
+from slamlab.slam.field_cells import cell, rows_cols
 from slamlab.slam.raycast import field_place
 from slamlab.slam.tiles import TILE, TILE_SHIFT, tile_cell
 
@@ -136,12 +137,13 @@ def _distance(f, sigma_cells, cap):
 def field_gradient(field, pool_f, tab, lut, lut_d, sigma_cells, ox, oy, inv_res, x, y, th, pts, w_scale, g, h):
     """The sum of the field at the points (M, 2, body-yaw frame) with the body at (x, y, th)
     (returned; as `matcher.score_field`), its gradient in `g` and curvature in `h`
-    (`add_point`). Reads the dense `field` (H, W) when it has cells (d from f; cells past the
+    (`add_point`). Reads the dense `field` (H, W; either form of `field_cells`) when it has cells (d from f; cells past the
     radius read d = radius + 1 as in `distance_table`, given as `lut_d[0]`), else particle
     tiles `pool_f[tab[...]]` decoded by `lut` and `lut_d`."""
-    dense = field.shape[0] > 0
-    H = field.shape[0] if dense else tab.shape[0] << TILE_SHIFT
-    W = field.shape[1] if dense else tab.shape[1] << TILE_SHIFT
+    FH, FW = rows_cols(field)
+    dense = FH > 0
+    H = FH if dense else tab.shape[0] << TILE_SHIFT
+    W = FW if dense else tab.shape[1] << TILE_SHIFT
     cap = lut_d[0]
     c = math.cos(th)
     s = math.sin(th)
@@ -157,10 +159,10 @@ def field_gradient(field, pool_f, tab, lut, lut_d, sigma_cells, ox, oy, inv_res,
         if c0 < 0 or r0 < 0 or c0 + 1 >= W or r0 + 1 >= H:
             continue
         if dense:
-            f00 = field[r0, c0]
-            f01 = field[r0, c0 + 1]
-            f10 = field[r0 + 1, c0]
-            f11 = field[r0 + 1, c0 + 1]
+            f00 = cell(field, r0, c0)
+            f01 = cell(field, r0, c0 + 1)
+            f10 = cell(field, r0 + 1, c0)
+            f11 = cell(field, r0 + 1, c0 + 1)
             d00 = _distance(f00, sigma_cells, cap)
             d01 = _distance(f01, sigma_cells, cap)
             d10 = _distance(f10, sigma_cells, cap)

@@ -7,7 +7,10 @@ growth (a copy) happens rarely. Optionally the grid also keeps a likelihood fiel
 Gaussian of the distance to the nearest occupied cell) for scan matching, recomputed only
 where a scan changed which cells are occupied (or, with `walls_at_hits`, where a wall moved
 within its cell: each wall's Gaussian is then centred where the scan hits in its cell fell on
-average, not at the cell's centre; `raycast.note_hits`).
+average, not at the cell's centre; `raycast.note_hits`). The field is kept as codes of its
+kernels' values (`field_cells.value_codes`: one byte a cell, two with walls at their hits),
+which the field kernels raise and lower as they would the values (codes keep the values'
+order) and the matchers read through the table (`field_cells.cell`).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
 from slamlab.config.slam import MapConfig
 from slamlab.heap import release_pages
+from slamlab.slam.field_cells import FieldCells, value_codes
 from slamlab.slam.raycast import (
     WALL_STEPS, copy_nonzero, field_radius_cells, kernel_bank, note_hits, raise_field, raycast_update, raycast_update_noting, refresh_cells,
     update_field,
@@ -50,7 +54,7 @@ def _copy_into(a: np.ndarray, out: np.ndarray, r0: int, c0: int, release_old: bo
     (`heap.release_pages`): the old and the new array are not both resident at once. A grid
     grows its log-odds and then its field, so otherwise three full arrays were resident at its
     largest growth (hospital log: 485 MB)."""
-    bits = f"u{a.dtype.itemsize}"  # the grid's float32 cells, copied as their bits
+    bits = f"u{a.dtype.itemsize}"  # the grid's cells (float32 log-odds, field codes), copied as their bits
     dst = out.view(bits)
     release = release_old and a.flags.c_contiguous and a.flags.owndata and a.base is None and a.nbytes > 2 * RELEASE_BAND_BYTES
     H = a.shape[0]
@@ -75,9 +79,10 @@ SOLE_REFERENCE = _sole_reference_count()
 class OccupancyGrid:
     """Log-odds grid centred at `center_xy` (m) at start, growing on demand.
 
-    `field_sigma_m` > 0 also maintains `field` (float32, values in [0, 1]) =
+    `field_sigma_m` > 0 also maintains the likelihood field, values in [0, 1] =
     exp(-d^2 / (2 sigma^2)) with d the distance (m) to the nearest occupied cell, cut off at
-    `field_radius_m`. `walls_at_hits`: d is measured from the mean of the hits in that cell
+    `field_radius_m`: kept as `field` (codes, uint8 or uint16) and `field_lut` (float32, the
+    value of each code); readers take `field_cells`. `walls_at_hits`: d is measured from the mean of the hits in that cell
     (to 1/9 of a cell), kept in three bytes a cell (`hit_dx`, `hit_dy`, `hit_n`), for a field
     started now or later (`start_field`).
     """
@@ -95,8 +100,9 @@ class OccupancyGrid:
         n = max(int(np.ceil(settings.initial_size_m / self.res)), 8)
         self.origin = np.array([center_xy[0] - n * self.res / 2.0, center_xy[1] - n * self.res / 2.0])
         self.log_odds = np.zeros((n, n), dtype=np.float32)
-        self.bank: np.ndarray | None = None  # the field's kernels [S, S, 2R+1, 2R+1]: one, or one per place in a cell
-        self.field: np.ndarray | None = None
+        self.bank: np.ndarray | None = None  # the field's kernels as codes [S, S, 2R+1, 2R+1]: one, or one per place in a cell
+        self.field_lut = np.zeros(1, dtype=np.float32)  # the value of each field code (ascending, 0 first)
+        self.field: np.ndarray | None = None  # the field's codes
         self.walls_at_hits = walls_at_hits
         # each cell's mean hit offset from its centre (int8, 1/256 cell) and hit count; empty: walls at cell centres
         shape = (n, n) if walls_at_hits else (0, 0)
@@ -105,7 +111,7 @@ class OccupancyGrid:
         self.hit_n = np.zeros(shape, dtype=np.uint8)
         if field_sigma_m > 0:
             self._start_bank(field_sigma_m, field_radius_m)
-            self.field = np.zeros((n, n), dtype=np.float32)
+            self.field = np.zeros((n, n), dtype=self.bank.dtype)
         self.grow_count = 0
         self._flips = np.empty((0, 2), dtype=np.int64)  # scratch for `insert`: the cells a scan changed
 
@@ -115,7 +121,7 @@ class OccupancyGrid:
 
     @property
     def nbytes(self) -> int:
-        """Bytes the grid's arrays hold: log-odds, field, hit offsets."""
+        """Bytes the grid's arrays hold: log-odds, field codes, hit offsets."""
         arrays = (self.log_odds, self.field, self.hit_dx, self.hit_dy, self.hit_n)
         return sum(a.nbytes for a in arrays if a is not None)
 
@@ -125,9 +131,21 @@ class OccupancyGrid:
         assert self.bank is not None, "grid built without a likelihood field"
         return self.bank.shape[2] // 2
 
+    @property
+    def field_cells(self) -> FieldCells:
+        """The field as its readers take it: (codes, lut), a cell's value lut[codes[r, c]]."""
+        assert self.field is not None, "grid built without a likelihood field"
+        return self.field, self.field_lut
+
+    def field_values(self) -> np.ndarray:
+        """The field's values, float32 [H, W] (a decoded copy)."""
+        assert self.field is not None, "grid built without a likelihood field"
+        return self.field_lut[self.field]
+
     def _start_bank(self, field_sigma_m: float, field_radius_m: float) -> None:
         steps = WALL_STEPS if self.walls_at_hits else 1
-        self.bank = kernel_bank(field_sigma_m / self.res, field_radius_cells(field_sigma_m, field_radius_m, self.res), steps)
+        values = kernel_bank(field_sigma_m / self.res, field_radius_cells(field_sigma_m, field_radius_m, self.res), steps)
+        self.bank, self.field_lut = value_codes(values)
 
     def cells(self, xy: FloatArray) -> tuple[np.ndarray, np.ndarray]:
         """(rows, cols) int64 of world points (M, 2) m (may lie outside the grid)."""
@@ -195,7 +213,8 @@ class OccupancyGrid:
         have kept up to date, scan by scan: tested) and keep it from now on."""
         assert self.field is None and field_sigma_m > 0, "the grid has a field already, or none is asked for"
         self._start_bank(field_sigma_m, field_radius_m)
-        self.field = np.zeros(self.shape, dtype=np.float32)
+        assert self.bank is not None
+        self.field = np.zeros(self.shape, dtype=self.bank.dtype)
         self._refresh_field(self.field, 0, self.shape[0], 0, self.shape[1])
 
     def insert(self, sensor_xy: FloatArray, points_xy: FloatArray) -> None:

@@ -31,6 +31,7 @@ from slamlab.config.slam import GridMatcherConfig as _Grid
 from slamlab.config.slam import LikelihoodMatcherConfig as _Field
 from slamlab.errors import ConfigError
 from slamlab.geometry import FloatArray, wrap_angle
+from slamlab.slam.field_cells import cell, rows_cols
 from slamlab.slam.gauss_newton import NO_LUT, NO_POOL, NO_TABLE, distance_table, refine_pose
 from slamlab.slam.grid import OccupancyGrid
 from slamlab.slam.raycast import field_place, field_radius_cells
@@ -46,7 +47,7 @@ _NO_EXT_ROWS = np.zeros((0, 6))  # no stretches
 @numba.njit(cache=True)
 def score_field(field, ox, oy, inv_res, x, y, th, pts):
     """Sum of the likelihood field (bilinear between cell centres) at the points."""
-    H, W = field.shape
+    H, W = rows_cols(field)
     c = math.cos(th)
     s = math.sin(th)
     total = 0.0
@@ -58,8 +59,8 @@ def score_field(field, ox, oy, inv_res, x, y, th, pts):
             continue
         fu = u - c0
         fv = v - r0
-        total += (1.0 - fv) * ((1.0 - fu) * field[r0, c0] + fu * field[r0, c0 + 1]) + fv * (
-            (1.0 - fu) * field[r0 + 1, c0] + fu * field[r0 + 1, c0 + 1]
+        total += (1.0 - fv) * ((1.0 - fu) * cell(field, r0, c0) + fu * cell(field, r0, c0 + 1)) + fv * (
+            (1.0 - fu) * cell(field, r0 + 1, c0) + fu * cell(field, r0 + 1, c0 + 1)
         )
     return total
 
@@ -73,8 +74,8 @@ def _field_at(field, H, W, u, v):
         return 0.0
     fu = u - c0
     fv = v - r0
-    return (1.0 - fv) * ((1.0 - fu) * field[r0, c0] + fu * field[r0, c0 + 1]) + fv * (
-        (1.0 - fu) * field[r0 + 1, c0] + fu * field[r0 + 1, c0 + 1]
+    return (1.0 - fv) * ((1.0 - fu) * cell(field, r0, c0) + fu * cell(field, r0, c0 + 1)) + fv * (
+        (1.0 - fu) * cell(field, r0 + 1, c0) + fu * cell(field, r0 + 1, c0 + 1)
     )
 
 
@@ -83,7 +84,7 @@ def score_stretches(field, ox, oy, inv_res, x, y, th, pts, ext):
     """`score_field`, except that a point with a stretch (`surface_stretches`: ext[i] = (ux,
     uy, n_before, n_after, step_before, step_after)) scores the largest field value at
     samples along its stretch of surface."""
-    H, W = field.shape
+    H, W = rows_cols(field)
     c = math.cos(th)
     s = math.sin(th)
     total = 0.0
@@ -242,7 +243,7 @@ def coarse_by_cells(field, ox, oy, inv_res, px, py, pt, pts, shifts, yaws, score
     For each yaw the points are placed once; every shift's bilinear value reuses the
     placement's cell and weights, a whole number of cells further on (the tiled maps'
     `tiled_match.coarse_scores_by_cells`, on one dense array)."""
-    H, W = field.shape
+    H, W = rows_cols(field)
     r_lo = shifts[:, 0].min()
     c_lo = shifts[:, 1].min()
     ny = score.shape[1]
@@ -261,11 +262,11 @@ def coarse_by_cells(field, ox, oy, inv_res, px, py, pt, pts, shifts, yaws, score
             c0 = cb + c_lo
             if r0 >= 0 and c0 >= 0 and r0 + ny + 1 <= H and c0 + nx + 1 <= W:
                 for dr in range(ny):
-                    row0 = field[r0 + dr]
-                    row1 = field[r0 + dr + 1]
+                    ra = r0 + dr
                     for dc in range(nx):
-                        score[a, dr, dc] += (1.0 - fv) * ((1.0 - fu) * row0[c0 + dc] + fu * row0[c0 + dc + 1]) + fv * (
-                            (1.0 - fu) * row1[c0 + dc] + fu * row1[c0 + dc + 1])
+                        ca = c0 + dc
+                        score[a, dr, dc] += (1.0 - fv) * ((1.0 - fu) * cell(field, ra, ca) + fu * cell(field, ra, ca + 1)) + fv * (
+                            (1.0 - fu) * cell(field, ra + 1, ca) + fu * cell(field, ra + 1, ca + 1))
             else:
                 for dr in range(ny):
                     for dc in range(nx):
@@ -720,7 +721,7 @@ class LikelihoodFieldMatcher(Matcher):
         scores = np.empty(len(poses))
         evals = np.empty(len(poses), dtype=np.int64)
         field_search(
-            grid.field, grid.origin[0], grid.origin[1], 1.0 / grid.res, np.ascontiguousarray(poses), coarse, fine,
+            grid.field_cells, grid.origin[0], grid.origin[1], 1.0 / grid.res, np.ascontiguousarray(poses), coarse, fine,
             self.offsets, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5, self.refine_levels,
             self.kxy, self.kyaw, best, scores, evals, ext, *self._refinement(grid.res),
         )
@@ -745,7 +746,7 @@ class LikelihoodFieldMatcher(Matcher):
         evals = np.empty(n, dtype=np.int64)
         shifts, _, yaws = self._cell_shifts(grid.res)
         field_search_scans(
-            grid.field, grid.origin[0], grid.origin[1], 1.0 / grid.res, np.ascontiguousarray(poses, dtype=np.float64),
+            grid.field_cells, grid.origin[0], grid.origin[1], 1.0 / grid.res, np.ascontiguousarray(poses, dtype=np.float64),
             pts.coarse, pts.coarse_ends, pts.fine, pts.fine_ends, self.offsets, shifts, yaws, self.xy_step_m * 0.5, self.yaw_step_rad * 0.5,
             self.refine_levels, self.kxy, self.kyaw, best, scores, evals,
         )

@@ -52,6 +52,7 @@ import numpy as np
 from slamlab.errors import ConfigError
 from slamlab.frames import GridImage
 from slamlab.geometry import FloatArray
+from slamlab.slam.field_cells import value_codes
 from slamlab.slam.grid import MapSettings
 from slamlab.slam.raycast import field_radius_cells, gaussian_kernel, line_start, line_step
 
@@ -485,10 +486,10 @@ def log_odds_codes(settings: MapSettings) -> tuple[np.dtype, float]:
 def field_codes(kernel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One-byte codes for a float32 field kernel: (codes uint8 like `kernel`, lut float32)
     with lut[codes] == kernel, lut sorted ascending and lut[0] == 0 (the empty tile)."""
-    lut = np.unique(np.concatenate([np.zeros(1, np.float32), kernel.ravel()]).astype(np.float32))
-    if len(lut) > 256:
+    codes, lut = value_codes(kernel)
+    if codes.dtype != np.uint8:
         raise ConfigError("matcher.radius_m", f"the field kernel has {len(lut)} distinct values; at most 256 fit the one-byte field tiles")
-    return np.searchsorted(lut, kernel).astype(np.uint8), lut
+    return codes, lut
 
 
 def decode_codes(codes: np.ndarray, unit: float) -> np.ndarray:

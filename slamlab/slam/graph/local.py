@@ -105,7 +105,7 @@ class LocalSlam:
         grid, pose = (self.grid, self.online) if self.grid is not None else (self.submaps.matching().grid if self.submaps.active else None, self.chain)
         if grid is None:
             return np.zeros((3, 3))
-        cov = match_covariance(grid.field, grid.origin, grid.res, pose, self.matcher.fine_points(scan), 0.0, 0.0)
+        cov = match_covariance(grid.field_cells, grid.origin, grid.res, pose, self.matcher.fine_points(scan), 0.0, 0.0)
         w, v = np.linalg.eigh(cov[:2, :2])
         w = np.minimum(w, cap)
         out = np.zeros((3, 3))

@@ -29,6 +29,7 @@ import numpy as np
 from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, wrap_angle
 from slamlab.slam.graph.branch_bound import CorrelativeSearch, SearchWindow, yaw_step_for
 from slamlab.slam.graph.submaps import FIELD_CODES, FinishedSubmap, Submaps
+from slamlab.slam.field_cells import FieldCells
 from slamlab.slam.matcher import field_search, score_field, voxel_filter
 from slamlab.slam.raycast import line_start, line_step
 
@@ -349,13 +350,13 @@ def contradictions(state, field, ox, oy, inv_res, x, y, th, pts, sx, sy, margin_
 MAX_SIGMA_M = 10.0  # a match that pins nothing along some direction gets this sigma there (m; rad for yaw)
 
 
-def match_covariance(field: np.ndarray, origin: FloatArray, res_m: float, pose: FloatArray, pts: FloatArray,
+def match_covariance(field: np.ndarray | FieldCells, origin: FloatArray, res_m: float, pose: FloatArray, pts: FloatArray,
                      sigma_m: float, sigma_rad: float) -> FloatArray:
     """(3, 3) covariance of a matched pose (in the node's own frame, the frame of a
     `BetweenFactorPose2` error): the score's curvature at the match, taken as the information
     of a log-likelihood (the field is a Gaussian of the distance to the wall: a point on a wall
     adds 1 / sigma_field^2 per m^2 across it), inverted, plus the floor sigma_m^2 / sigma_rad^2
-    on each axis. Across a corridor a match is pinned to ~1 cm, along it by nothing but the
+    on each axis (`field`: values, or a grid's `field_cells`). Across a corridor a match is pinned to ~1 cm, along it by nothing but the
     corridor's ends: its covariance there is large and the graph takes no along-track pull from it."""
     p = np.ascontiguousarray(pts, dtype=np.float64)
     hess = score_hessian(field, float(origin[0]), float(origin[1]), 1.0 / res_m, float(pose[0]), float(pose[1]), float(pose[2]),

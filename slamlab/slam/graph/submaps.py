@@ -216,7 +216,7 @@ class Submaps:
             c0, c1 = max(int(known[1][0]) - R, 0), min(int(known[1][-1]) + R + 1, W)
         else:
             r0, r1, c0, c1 = 0, 1, 0, 1
-        codes = np.rint(g.field[r0:r1, c0:c1] * FIELD_CODES).astype(np.uint8)
+        codes = np.rint(g.field_lut * FIELD_CODES).astype(np.uint8)[g.field[r0:r1, c0:c1]]  # each grid code's byte, then looked up
         lo = g.log_odds[r0:r1, c0:c1]
         state = np.where(lo > g.s.occupied_threshold, OCCUPIED, np.where(lo < 0, FREE, UNKNOWN)).astype(np.uint8)
         origin = g.origin + np.array([c0, r0]) * g.res
