@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -52,25 +51,31 @@ EXTRA_OVERRIDES: list[str] = []  # `--set`: added to every run (set once, in mai
 
 
 def slamlab(args: list[str], run_dir: Path, threads: int | None = None) -> dict:
-    """Run one `slamlab` process; returns its metrics plus wall, CPU and peak memory. The code
-    it runs is the checkout the benchmark was started in (`python -m` puts the working
-    directory first on sys.path, ahead of PYTHONPATH): to measure other code, start the
-    benchmark from that code's checkout (bench_graph.py and the others call this too)."""
+    """Run one `slamlab` process; returns its metrics plus wall, CPU and the whole process's
+    peak resident memory (`whole_peak_mb`: the kernel's ru_maxrss of this child, from `wait4`,
+    so it counts the report when `args` asks for one; metrics.json's `peak_memory_mb` is the
+    run's peak before its report). No report unless `args` says `report=true` (the defaults
+    come first, so the arguments override them). The code it runs is the checkout the
+    benchmark was started in (`python -m` puts the working directory first on sys.path, ahead
+    of PYTHONPATH): to measure other code, start the benchmark from that code's checkout
+    (bench_graph.py and the others call this too)."""
     env = dict(os.environ)
     if threads is not None:
         env["NUMBA_NUM_THREADS"] = str(threads)
-    cmd = [sys.executable, "-m", "slamlab.cli.app", *args, *EXTRA_OVERRIDES, f"hydra.run.dir={run_dir}", "progress=off", "report=false"]
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cmd = [sys.executable, "-m", "slamlab.cli.app", "progress=off", "report=false", *args, *EXTRA_OVERRIDES, f"hydra.run.dir={run_dir}"]
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    err = proc.stderr.read() if proc.stderr else ""
+    _, status, usage = os.wait4(proc.pid, 0)  # this child's own usage (runs go in parallel threads)
     wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    proc.returncode = os.waitstatus_to_exitcode(status)
     if proc.returncode != 0:
-        tail = proc.stderr.strip().splitlines()[-1:] or ["?"]
+        tail = err.strip().splitlines()[-1:] or ["?"]
         return {"status": f"failed: {tail[0]}"}
     m = json.loads((run_dir / "metrics.json").read_text())
     m["wall_s"] = wall
-    m["cpu_s"] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    m["cpu_s"] = usage.ru_utime + usage.ru_stime
+    m["whole_peak_mb"] = usage.ru_maxrss / 1024.0
     return m
 
 
