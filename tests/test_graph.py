@@ -22,7 +22,7 @@ from slamlab.errors import ConfigError
 from slamlab.eval.relations import relation_errors
 from slamlab.geometry import se2_between, se2_compose
 from slamlab.slam.engine import run_slam
-from slamlab.slam.graph.branch_bound import NO_EXCLUSION, CorrelativeSearch, SearchGrid, SearchWindow, bnb_search, exhaustive_search, max_pool_levels, place_points
+from slamlab.slam.graph.branch_bound import NO_EXCLUSION, CorrelativeSearch, SearchGrid, SearchWindow, bnb_search, exhaustive_search, max_pool_levels, place_points, top_bounds
 from slamlab.slam.graph.loops import ACCEPTED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.submaps import search_grid_of
@@ -54,7 +54,8 @@ def test_branch_and_bound_returns_the_exhaustive_searchs_best_on_random_maps_and
     rng = np.random.default_rng(1)
     for _ in range(300):
         grid, rows, cols, wx, wy, levels = _random_case(rng)
-        score, k, dx, dy, _ = bnb_search(max_pool_levels(grid, levels), rows, cols, wx, wy, 0, NO_EXCLUSION)
+        pool = max_pool_levels(grid, levels)
+        score, k, dx, dy, _ = bnb_search(pool, rows, cols, wx, wy, 0, NO_EXCLUSION, top_bounds(pool, rows, cols, wx, wy))
         # the same candidate (ties go to the smallest yaw index, then dx, then dy) and the
         # same integer score, bit for bit
         assert (score, k, dx, dy) == exhaustive_search(grid, rows, cols, wx, wy)

@@ -118,19 +118,39 @@ def _inside_exclusion(k, dx0, dy0, size, ex):
     return False
 
 
-@numba.njit(cache=True)
-def bnb_search(pool, rows, cols, wx, wy, min_score, ex):
-    """Branch and bound over yaw index k (rows / cols' first axis), dx in [-wx, wx], dy in
-    [-wy, wy] (cells) on `pool` (`max_pool_levels`). Returns (score, k, dx, dy, nodes): the
-    best candidate scoring >= min_score (score -1 when none does), ties to the smallest
-    (k, dx, dy), and the number of bounds computed. Candidates inside an exclusion box (rows
-    of `ex` (B, 6): k_lo, k_hi, dx_lo, dx_hi, dy_lo, dy_hi) are left out."""
+@numba.njit(cache=True, parallel=True)
+def top_bounds(pool, rows, cols, wx, wy):
+    """The bounds of every top-level node (`bnb_search`'s first level), yaw after yaw on all
+    cores: entry (k * nx + a) * ny + b is the node of yaw k at offsets (-wx + a * top,
+    -wy + b * top). On a wide window (tens of metres, every yaw) there are 10^5-10^6 of them
+    and they are most of the search's reads: the deeper levels prune to a few nodes more."""
     L = pool.shape[0]
     Y = rows.shape[0]
     top = 1 << (L - 1)
     nx = (2 * wx) // top + 1
     ny = (2 * wy) // top + 1
-    n0 = Y * nx * ny
+    out = np.empty(Y * nx * ny, dtype=np.int64)
+    for k in numba.prange(Y):  # each entry its own: the same values whatever the thread count
+        for a in range(nx):
+            for b in range(ny):
+                out[(k * nx + a) * ny + b] = _level_score(pool, L - 1, rows, cols, k, -wx + a * top, -wy + b * top)
+    return out
+
+
+@numba.njit(cache=True)
+def bnb_search(pool, rows, cols, wx, wy, min_score, ex, t_score):
+    """Branch and bound over yaw index k (rows / cols' first axis), dx in [-wx, wx], dy in
+    [-wy, wy] (cells) on `pool` (`max_pool_levels`), from the top-level bounds `t_score`
+    (`top_bounds`: computed once for a scan in a window, also for its second-best search).
+    Returns (score, k, dx, dy, nodes): the best candidate scoring >= min_score (score -1 when
+    none does), ties to the smallest (k, dx, dy), and the number of bounds it used (the top
+    level's included, computed here or not). Candidates inside an exclusion box (rows of `ex` (B, 6): k_lo, k_hi, dx_lo, dx_hi, dy_lo, dy_hi) are
+    left out."""
+    L = pool.shape[0]
+    top = 1 << (L - 1)
+    nx = (2 * wx) // top + 1
+    ny = (2 * wy) // top + 1
+    n0 = t_score.shape[0]
     # the stack: the top level, then at most 4 children per level on the way down
     cap = n0 + 4 * L + 4
     s_score = np.empty(cap, dtype=np.int64)
@@ -138,21 +158,6 @@ def bnb_search(pool, rows, cols, wx, wy, min_score, ex):
     s_dx = np.empty(cap, dtype=np.int64)
     s_dy = np.empty(cap, dtype=np.int64)
     s_h = np.empty(cap, dtype=np.int64)
-    t_score = np.empty(n0, dtype=np.int64)
-    t_k = np.empty(n0, dtype=np.int64)
-    t_dx = np.empty(n0, dtype=np.int64)
-    t_dy = np.empty(n0, dtype=np.int64)
-    m = 0
-    for k in range(Y):
-        for a in range(nx):
-            for b in range(ny):
-                dx0 = -wx + a * top
-                dy0 = -wy + b * top
-                t_k[m] = k
-                t_dx[m] = dx0
-                t_dy[m] = dy0
-                t_score[m] = _level_score(pool, L - 1, rows, cols, k, dx0, dy0)
-                m += 1
     nodes = n0
     # push ascending (stable) so that the best bound is popped first, and among equal
     # bounds the smallest (k, dx, dy)
@@ -161,11 +166,12 @@ def bnb_search(pool, rows, cols, wx, wy, min_score, ex):
     for j in range(n0):
         q = order[j]
         s_score[sp] = t_score[q]
-        s_k[sp] = t_k[q]
-        s_dx[sp] = t_dx[q]
-        s_dy[sp] = t_dy[q]
+        s_k[sp] = q // (nx * ny)
+        s_dx[sp] = -wx + ((q // ny) % nx) * top
+        s_dy[sp] = -wy + (q % ny) * top
         s_h[sp] = L - 1
         sp += 1
+    Y = rows.shape[0]
     best = min_score - 1
     bk = Y
     bdx = wx + 1
@@ -335,6 +341,7 @@ class CorrelativeSearch:
         self.n_points = len(pts)
         self.rows, self.cols = place_points(pts, float(window.center[0]), float(window.center[1]), self.yaws,
                                            grid.origin_xy[0], grid.origin_xy[1], 1.0 / res)
+        self._top: np.ndarray | None = None
 
     def _result(self, found: tuple[int, int, int, int, int]) -> SearchResult:
         score, k, dx, dy, nodes = (int(v) for v in found)
@@ -345,10 +352,16 @@ class CorrelativeSearch:
         pose = np.array([c[0] + dx * res, c[1] + dy * res, float(self.yaws[k])])
         return SearchResult(True, pose, score / (255.0 * max(self.n_points, 1)), score, k, dx, dy, nodes)
 
+    def _top_bounds(self) -> np.ndarray:
+        """The top-level bounds, computed at the first search and kept for the second."""
+        if self._top is None:
+            self._top = top_bounds(self.grid.pool, self.rows, self.cols, self.wx, self.wy)
+        return self._top
+
     def best(self, min_score: float) -> SearchResult:
         """The best candidate whose mean grid value reaches `min_score` (in [0, 1])."""
         threshold = int(math.ceil(min_score * 255.0 * self.n_points))
-        return self._result(bnb_search(self.grid.pool, self.rows, self.cols, self.wx, self.wy, threshold, NO_EXCLUSION))
+        return self._result(bnb_search(self.grid.pool, self.rows, self.cols, self.wx, self.wy, threshold, NO_EXCLUSION, self._top_bounds()))
 
     def best_outside(self, around: SearchResult, xy_m: float, yaw_rad: float, min_score: float) -> SearchResult:
         """The best candidate reaching `min_score` more than `xy_m` (in x or y) or `yaw_rad` away
@@ -370,4 +383,4 @@ class CorrelativeSearch:
                 ranges = [(lo, Y - 1), (0, hi - Y)]
         ex = np.array([[a, b, around.dx - exy, around.dx + exy, around.dy - exy, around.dy + exy] for a, b in ranges], dtype=np.int64)
         threshold = int(math.ceil(min_score * 255.0 * self.n_points))
-        return self._result(bnb_search(self.grid.pool, self.rows, self.cols, self.wx, self.wy, threshold, ex))
+        return self._result(bnb_search(self.grid.pool, self.rows, self.cols, self.wx, self.wy, threshold, ex, self._top_bounds()))
