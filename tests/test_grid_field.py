@@ -279,3 +279,25 @@ def test_the_field_kept_as_codes_holds_exactly_the_float32_field(at_hits):
     for x, y, th in rng.normal(0.0, [0.3, 0.3, 0.5], (20, 3)):
         assert score_field(g.field_cells, g.origin[0], g.origin[1], 1.0 / g.res, x, y, th, scan) == \
             score_field(values, g.origin[0], g.origin[1], 1.0 / g.res, x, y, th, scan)
+
+
+@pytest.mark.parametrize("at_hits", [False, True])
+def test_the_field_recomputed_in_row_bands_on_all_cores_is_the_field_recomputed_at_once(at_hits):
+    """`update_field_bands` (a whole map's field after it is redrawn): each band takes its values
+    from the walls within R rows of it, so any band height gives the one-pass field, also over
+    a box that does not start at the grid's edge."""
+    from slamlab.slam.raycast import update_field_bands
+
+    rng = np.random.default_rng(10)
+    g = OccupancyGrid(MapConfig(initial_size_m=12.0), (0.0, 0.0), 0.1, 0.3, walls_at_hits=at_hits)
+    for _ in range(60):
+        g.insert(*_random_scan(rng, 2.0, 4.0))
+    thresh = np.float32(g.s.occupied_threshold)
+    for r0, r1, c0, c1 in ((0, g.shape[0], 0, g.shape[1]), (17, 90, 5, 101)):
+        ref, banded = g.field.copy(), g.field.copy()
+        update_field(g.log_odds, ref, thresh, g.bank, g.hit_dx, g.hit_dy, r0, r1, c0, c1)
+        for band_rows in (1, 7, 64, 1000):
+            banded[r0:r1, c0:c1] = 0
+            update_field_bands(g.log_odds, banded, thresh, g.bank, g.hit_dx, g.hit_dy, r0, r1, c0, c1, band_rows)
+            assert np.array_equal(banded, ref), f"band of {band_rows} rows over {(r0, r1, c0, c1)}"
+    assert np.count_nonzero(ref) > 1000

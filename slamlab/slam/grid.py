@@ -26,7 +26,7 @@ from slamlab.heap import release_pages
 from slamlab.slam.field_cells import FieldCells, value_codes
 from slamlab.slam.raycast import (
     WALL_STEPS, copy_nonzero, field_radius_cells, kernel_bank, note_hits, raise_field, raycast_update, raycast_update_noting, refresh_cells,
-    update_field,
+    update_field, update_field_bands,
 )
 
 # The `map/` config group's schema is the settings object the grid reads: resolution_m,
@@ -38,6 +38,8 @@ MapSettings = MapConfig
 
 NO_CELLS = np.empty((0, 2), dtype=np.int64)  # `note_hits` with nowhere to list moved walls (no field to keep)
 NO_FLIP = (np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1)  # an empty box of changed cells (`raycast_update`)
+PARALLEL_FIELD_CELLS = 1 << 20  # a field box of this many cells or more is recomputed in row bands on all cores
+FIELD_BAND_ROWS = 64  # rows a band (each band also reads the R rows of walls either side of it)
 RELEASE_BAND_BYTES = 4 << 20  # `_copy_into` gives an old array over twice this size back in bands of about this size
 
 
@@ -298,7 +300,11 @@ class OccupancyGrid:
             raise_field(self.field, self.bank, self.hit_dx, self.hit_dy, occupied)
 
     def _refresh_field(self, field: np.ndarray, r0: int, r1: int, c0: int, c1: int) -> None:
-        update_field(self.log_odds, field, np.float32(self.s.occupied_threshold), self.bank, self.hit_dx, self.hit_dy, r0, r1, c0, c1)
+        args = (self.log_odds, field, np.float32(self.s.occupied_threshold), self.bank, self.hit_dx, self.hit_dy, r0, r1, c0, c1)
+        if (r1 - r0) * (c1 - c0) >= PARALLEL_FIELD_CELLS:  # a whole map or a large part of it: row bands on all cores
+            update_field_bands(*args, max(FIELD_BAND_ROWS, 4 * self.field_radius))
+        else:
+            update_field(*args)
 
     def occupied(self) -> np.ndarray:
         """bool [H, W]: cells whose log-odds exceed the occupied threshold."""

@@ -230,6 +230,18 @@ def update_field(lo, field, thresh, bank, hit_dx, hit_dy, r0, r1, c0, c1):
                             field[rr, cc] = v
 
 
+@numba.njit(cache=True, parallel=True)
+def update_field_bands(lo, field, thresh, bank, hit_dx, hit_dy, r0, r1, c0, c1, band_rows):
+    """`update_field` over the box, in bands of `band_rows` rows on all cores: a band's cells
+    take their values from the walls within R rows of it, as the whole box's would, and each
+    band writes only its own rows, so the field is the same whatever the thread count (a
+    whole building's map, redrawn after a loop closes: ~0.3 s a time on one core)."""
+    n = (r1 - r0 + band_rows - 1) // band_rows
+    for i in numba.prange(n):
+        a = r0 + i * band_rows
+        update_field(lo, field, thresh, bank, hit_dx, hit_dy, a, min(a + band_rows, r1), c0, c1)
+
+
 @numba.njit(cache=True, inline="always")
 def _mean_step(old, offset, n):
     """The running mean `old` (int8 units) after one more hit at `offset` (float units), the
