@@ -151,19 +151,21 @@ def bnb_search(pool, rows, cols, wx, wy, min_score, ex, t_score):
     nx = (2 * wx) // top + 1
     ny = (2 * wy) // top + 1
     n0 = t_score.shape[0]
+    nodes = n0
+    # push ascending (stable) so that the best bound is popped first, and among equal
+    # bounds the smallest (k, dx, dy); a node bounded below min_score holds no candidate that
+    # could be returned, so it is not pushed (on a wide window that is ~90 % of them)
+    keep = np.flatnonzero(t_score >= min_score)
+    order = keep[np.argsort(-t_score[keep], kind="mergesort")[::-1]]
     # the stack: the top level, then at most 4 children per level on the way down
-    cap = n0 + 4 * L + 4
+    cap = order.shape[0] + 4 * L + 4
     s_score = np.empty(cap, dtype=np.int64)
     s_k = np.empty(cap, dtype=np.int64)
     s_dx = np.empty(cap, dtype=np.int64)
     s_dy = np.empty(cap, dtype=np.int64)
     s_h = np.empty(cap, dtype=np.int64)
-    nodes = n0
-    # push ascending (stable) so that the best bound is popped first, and among equal
-    # bounds the smallest (k, dx, dy)
-    order = np.argsort(-t_score, kind="mergesort")[::-1]
     sp = 0
-    for j in range(n0):
+    for j in range(order.shape[0]):
         q = order[j]
         s_score[sp] = t_score[q]
         s_k[sp] = q // (nx * ny)
