@@ -13,8 +13,8 @@ start: the coarse grid's best offset.
 Against the hill climb (`refine: climb`: +-x, +-y, +-yaw moves, halving the step four
 times, ~56 scores per particle on Intel) it needs ~8 scores per particle, each a little
 dearer, and ends at a slightly higher S - P (Intel, 180 particle matches: +0.01 on average).
-`refine_pose` reads either a dense field (the shared map of `filter=course`, the graph's online map) or a particle's
-tiles (`filter=rbpf`, field codes decoded by `lut`, their d by `lut_d`).
+`refine_pose` reads either a dense field (the shared map of `filter=course`, the graph's online
+map) or a particle's tiles (`filter=rbpf`, field codes decoded by `lut`, their d by `lut_d`).
 """
 
 from __future__ import annotations
@@ -137,9 +137,9 @@ def _distance(f, sigma_cells, cap):
 def field_gradient(field, pool_f, tab, lut, lut_d, sigma_cells, ox, oy, inv_res, x, y, th, pts, w_scale, g, h):
     """The sum of the field at the points (M, 2, body-yaw frame) with the body at (x, y, th)
     (returned; as `matcher.score_field`), its gradient in `g` and curvature in `h`
-    (`add_point`). Reads the dense `field` (H, W; either form of `field_cells`) when it has cells (d from f; cells past the
-    radius read d = radius + 1 as in `distance_table`, given as `lut_d[0]`), else particle
-    tiles `pool_f[tab[...]]` decoded by `lut` and `lut_d`."""
+    (`add_point`). Reads the dense `field` (H, W; either form `field_cells.cell` reads) when it
+    has cells (d from f; cells past the radius read d = radius + 1 as in `distance_table`, given
+    as `lut_d[0]`), else particle tiles `pool_f[tab[...]]` decoded by `lut` and `lut_d`."""
     FH, FW = rows_cols(field)
     dense = FH > 0
     H = FH if dense else tab.shape[0] << TILE_SHIFT

@@ -84,9 +84,9 @@ class OccupancyGrid:
     `field_sigma_m` > 0 also maintains the likelihood field, values in [0, 1] =
     exp(-d^2 / (2 sigma^2)) with d the distance (m) to the nearest occupied cell, cut off at
     `field_radius_m`: kept as `field` (codes, uint8 or uint16) and `field_lut` (float32, the
-    value of each code); readers take `field_cells`. `walls_at_hits`: d is measured from the mean of the hits in that cell
-    (to 1/9 of a cell), kept in three bytes a cell (`hit_dx`, `hit_dy`, `hit_n`), for a field
-    started now or later (`start_field`).
+    value of each code); readers take `field_cells`. `walls_at_hits`: d is measured from the
+    mean of the hits in that cell (to 1/9 of a cell), kept in three bytes a cell (`hit_dx`,
+    `hit_dy`, `hit_n`), for a field started now or later (`start_field`).
     """
 
     def __init__(

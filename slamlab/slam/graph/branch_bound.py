@@ -144,9 +144,10 @@ def bnb_search(pool, rows, cols, wx, wy, min_score, ex, t_score):
     (`top_bounds`: computed once for a scan in a window, also for its second-best search).
     Returns (score, k, dx, dy, nodes): the best candidate scoring >= min_score (score -1 when
     none does), ties to the smallest (k, dx, dy), and the number of bounds it used (the top
-    level's included, computed here or not). Candidates inside an exclusion box (rows of `ex` (B, 6): k_lo, k_hi, dx_lo, dx_hi, dy_lo, dy_hi) are
-    left out."""
+    level's included, computed here or not). Candidates inside an exclusion box (rows of `ex`
+    (B, 6): k_lo, k_hi, dx_lo, dx_hi, dy_lo, dy_hi) are left out."""
     L = pool.shape[0]
+    Y = rows.shape[0]
     top = 1 << (L - 1)
     nx = (2 * wx) // top + 1
     ny = (2 * wy) // top + 1
@@ -173,7 +174,6 @@ def bnb_search(pool, rows, cols, wx, wy, min_score, ex, t_score):
         s_dy[sp] = -wy + (q % ny) * top
         s_h[sp] = L - 1
         sp += 1
-    Y = rows.shape[0]
     best = min_score - 1
     bk = Y
     bdx = wx + 1

@@ -27,9 +27,9 @@ import numba
 import numpy as np
 
 from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, wrap_angle
+from slamlab.slam.field_cells import FieldCells
 from slamlab.slam.graph.branch_bound import CorrelativeSearch, SearchWindow, yaw_step_for
 from slamlab.slam.graph.submaps import FIELD_CODES, FinishedSubmap, Submaps
-from slamlab.slam.field_cells import FieldCells
 from slamlab.slam.matcher import field_search, score_field, voxel_filter
 from slamlab.slam.raycast import line_start, line_step
 
@@ -356,8 +356,9 @@ def match_covariance(field: np.ndarray | FieldCells, origin: FloatArray, res_m: 
     `BetweenFactorPose2` error): the score's curvature at the match, taken as the information
     of a log-likelihood (the field is a Gaussian of the distance to the wall: a point on a wall
     adds 1 / sigma_field^2 per m^2 across it), inverted, plus the floor sigma_m^2 / sigma_rad^2
-    on each axis (`field`: values, or a grid's `field_cells`). Across a corridor a match is pinned to ~1 cm, along it by nothing but the
-    corridor's ends: its covariance there is large and the graph takes no along-track pull from it."""
+    on each axis (`field`: values, or a grid's `field_cells`). Across a corridor a match is
+    pinned to ~1 cm, along it by nothing but the corridor's ends: its covariance there is large
+    and the graph takes no along-track pull from it."""
     p = np.ascontiguousarray(pts, dtype=np.float64)
     hess = score_hessian(field, float(origin[0]), float(origin[1]), 1.0 / res_m, float(pose[0]), float(pose[1]), float(pose[2]),
                          p, res_m, res_m / max(float(np.max(np.hypot(p[:, 0], p[:, 1]))), 1.0))
