@@ -61,6 +61,34 @@ def test_branch_and_bound_returns_the_exhaustive_searchs_best_on_random_maps_and
         assert (score, k, dx, dy) == exhaustive_search(grid, rows, cols, wx, wy)
 
 
+def test_the_top_level_bounds_are_each_nodes_pooled_sum_whatever_the_thread_count():
+    """`top_bounds` (on all cores): entry (k * nx + a) * ny + b is the top level's sum for yaw k
+    at offsets (-wx + a * top, -wy + b * top), the same with one thread as with all."""
+    import numba
+
+    rng = np.random.default_rng(4)
+    grid = (rng.random((70, 50)) * 255).astype(np.uint8)
+    pts = rng.normal(0.0, 1.0, (40, 2))
+    rows, cols = place_points(pts, 1.2, 1.8, rng.uniform(-3.0, 3.0, 9), 0.0, 0.0, 20.0)
+    levels, wx, wy = 4, 37, 21
+    pool = max_pool_levels(grid, levels)
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = top_bounds(pool, rows, cols, wx, wy)
+    finally:
+        numba.set_num_threads(threads)
+    assert np.array_equal(top_bounds(pool, rows, cols, wx, wy), one)
+    top, pad = 1 << (levels - 1), (1 << (levels - 1)) - 1
+    nx, ny = (2 * wx) // top + 1, (2 * wy) // top + 1
+    assert len(one) == len(rows) * nx * ny
+    for q in rng.choice(len(one), 30, replace=False):
+        k, a, b = q // (nx * ny), (q // ny) % nx, q % ny
+        r, c = rows[k] - wy + b * top + pad, cols[k] - wx + a * top + pad
+        inside = (r >= 0) & (r < pool.shape[1]) & (c >= 0) & (c < pool.shape[2])
+        assert one[q] == int(pool[levels - 1, r[inside], c[inside]].astype(np.int64).sum())
+
+
 @pytest.mark.parametrize("f", [1, 2, 3])
 def test_a_submaps_search_grid_holds_the_largest_field_code_of_each_block_of_cells(f):
     """`search_grid_of`: the coarse grid's cell (i, j) is the max over map cells [f i, f i + f) x
