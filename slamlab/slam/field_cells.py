@@ -8,8 +8,10 @@ values as the float32 field it replaced, in a quarter of the memory (the map of 
 the run's largest array).
 
 The readers take either form, and are compiled for each:
-- a pair `(codes, lut)` (`grid.field_cells`): a cell's value is `lut[codes[r, c]]`;
-- a float32 array of values (a finished submap's decoded field, tests): `field[r, c]`.
+- a pair `(codes, lut)`: a cell's value is `lut[codes[r, c]]`. The grids' fields
+  (`grid.field_cells`) and the finished submaps' one-byte fields (`submaps.FIELD_LUT`: code /
+  255) are read this way, so a run compiles each reader once;
+- a float32 array of values (tests, a caller with plain values): `field[r, c]`.
 `cell` and `rows_cols` read both, so a reader is written once.
 """
 

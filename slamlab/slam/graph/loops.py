@@ -29,7 +29,7 @@ import numpy as np
 from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, wrap_angle
 from slamlab.slam.field_cells import FieldCells
 from slamlab.slam.graph.branch_bound import CorrelativeSearch, SearchWindow, yaw_step_for
-from slamlab.slam.graph.submaps import FIELD_CODES, FinishedSubmap, Submaps
+from slamlab.slam.graph.submaps import FIELD_LUT, FinishedSubmap, Submaps
 from slamlab.slam.matcher import field_search, score_field, voxel_filter
 from slamlab.slam.raycast import line_start, line_step
 
@@ -44,7 +44,6 @@ REFUTED = "refuted"  # a group that, optimised in, left earlier closures far off
 
 WALL_MARGIN_M = 0.3  # a beam passing through a wall this close to its end (m) is not a contradiction
 AMBIGUITY_SEARCH = 0.9  # the second best is searched down to this share of the ambiguity ratio, then refined
-FIELD_CACHE = 8  # float32 fields kept for refinement (a revisit refines against the same few submaps)
 MIN_POINTS = 20  # a scan with fewer search points is not searched (too little to tell places apart)
 _NO_EXT = np.zeros((0, 6))
 _NO_LUT = np.zeros(0)
@@ -126,7 +125,6 @@ class LoopSearch:
         self.searches = 0  # branch-and-bound searches run
         self.nodes_scored = 0  # bounds computed by them
         self.seconds = 0.0
-        self._fields: dict[int, np.ndarray] = {}  # float32 fields of the submaps refined lately
 
     def submaps_in_reach(self, pose: FloatArray, submaps: Submaps, anchors_global: FloatArray,
                          windows: FloatArray, tied_m: FloatArray, which: np.ndarray | None = None) -> list[tuple[FinishedSubmap, FloatArray, tuple[float, float], float]]:
@@ -193,7 +191,7 @@ class LoopSearch:
             self.nodes_scored += best.nodes
             if not best.found:
                 continue
-            field = self._field(sm, field_u8)
+            field = (field_u8, FIELD_LUT)  # read as code / 255 (`field_cells`)
             refined_pose, refined = self._refine(sm, field, best.pose, fine_pts)
             second = 0.0
             status = PENDING
@@ -241,18 +239,7 @@ class LoopSearch:
         self.seconds += time.perf_counter() - t0
         return out
 
-    def _field(self, sm: FinishedSubmap, field_u8: np.ndarray) -> np.ndarray:
-        """The submap's field as float32 values in [0, 1] (kept for the last few submaps
-        refined against)."""
-        field = self._fields.get(sm.index)
-        if field is None:
-            field = field_u8.astype(np.float32) * np.float32(1.0 / FIELD_CODES)
-            self._fields[sm.index] = field
-            while len(self._fields) > FIELD_CACHE:  # oldest first out
-                self._fields.pop(next(iter(self._fields)))
-        return field
-
-    def _refine(self, sm: FinishedSubmap, field: np.ndarray, pose: FloatArray, pts: FloatArray) -> tuple[FloatArray, float]:
+    def _refine(self, sm: FinishedSubmap, field: FieldCells, pose: FloatArray, pts: FloatArray) -> tuple[FloatArray, float]:
         """Hill climbing on the submap's field from `pose` (submap frame), no motion prior:
         the refined pose and its mean field value over the points (0..1)."""
         out = np.empty((1, 3))

@@ -32,6 +32,8 @@ from slamlab.slam.graph.branch_bound import SearchGrid
 from slamlab.slam.scan import ScanPoints, points_to_world
 
 FIELD_CODES = 255.0  # a finished submap's field value v in [0, 1] is kept as round(255 v)
+# the value of each of those codes, float32 (code / 255), for the field readers (`field_cells`)
+FIELD_LUT = np.arange(256, dtype=np.float32) * np.float32(1.0 / FIELD_CODES)
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2  # a finished submap's cell states
 UNPACKED = 8  # finished submaps kept unpacked at once (and their search grids)
 
