@@ -204,12 +204,12 @@ def refresh_cells(lo, field, thresh, bank, hit_dx, hit_dy, cells):
 
 @numba.njit(cache=True)
 def update_field(lo, field, thresh, bank, hit_dx, hit_dy, r0, r1, c0, c1):
-    """Recompute the likelihood field `field` ([H, W]) in rows [r0, r1), cols
-    [c0, c1): each cell gets the max over occupied cells (`lo > thresh`) within R cells of
-    their kernel (`bank` [S, S, 2R+1, 2R+1], e.g. a Gaussian of the distance, at the
-    wall's place: `_place`; S = 1: at cell centres). Values or their order-keeping codes
-    (`field_cells.value_codes`), field and bank alike: only their order is used. Cells outside the box are unchanged, so a caller recomputes only
-    where the occupancy changed (plus R).
+    """Recompute the likelihood field `field` ([H, W]) in rows [r0, r1), cols [c0, c1):
+    each cell gets the max over occupied cells (`lo > thresh`) within R cells of their kernel
+    (`bank` [S, S, 2R+1, 2R+1], e.g. a Gaussian of the distance, at the wall's place:
+    `_place`; S = 1: at cell centres). Field and bank hold values or their order-keeping codes
+    (`field_cells.value_codes`) alike: only their order is used. Cells outside the box are
+    unchanged, so a caller recomputes only where the occupancy changed (plus R).
     A cell already 0 is not written: a zero page of a building's map (far from any wall) then
     stays a page the system never backs, where a write would make it resident."""
     H, W = lo.shape
