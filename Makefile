@@ -13,11 +13,13 @@ run: setup  ## full pipeline on the built-in simulated THOR sequence
 lint: setup  ## the layer contract: a lower layer never imports a higher one (pyproject [tool.importlinter])
 	$(BIN)/lint-imports --no-logo
 
-# `make test` spreads the tests over TEST_WORKERS processes (pytest-xdist); the launcher sweeps share one (loadgroup)
+# `make test` spreads the tests over TEST_WORKERS processes (pytest-xdist), a test module to one process:
+# a module's fixtures (a whole run, often) are made once, and the launcher sweeps (Ray's included) never
+# start side by side
 TEST_WORKERS ?= 2
 
 test: lint  ## the layer contract and the whole test suite (real-data tests need SLAMLAB_DATA_DIR or ../shared/data); CI runs this
-	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadgroup $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadscope $(PYTEST_ARGS)
 
 test-fast: lint  ## the edit loop (< 1 min): no slow, real-data or browser tests
 	$(BIN)/python -m pytest -m "not slow and not data and not browser" $(PYTEST_ARGS)

@@ -17,9 +17,7 @@ from pathlib import Path
 
 import pytest
 
-# slow; and under `make test` (pytest-xdist) these sweeps run one after another in one worker, so
-# that the local Ray instance and the Ray cluster test's head never start side by side
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("ray")]
+pytestmark = pytest.mark.slow
 
 
 def run_sweep(launcher_args: list[str], tmp_path: Path, sim_cache: Path, **env_vars: str) -> subprocess.CompletedProcess:
