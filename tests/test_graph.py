@@ -61,6 +61,29 @@ def test_branch_and_bound_returns_the_exhaustive_searchs_best_on_random_maps_and
         assert (score, k, dx, dy) == exhaustive_search(grid, rows, cols, wx, wy)
 
 
+def test_branch_and_bound_gives_the_same_answer_and_bound_count_on_one_thread_as_on_all():
+    """The top nodes are dealt to `BNB_SHARES` searches run side by side: their number is
+    fixed, so one thread gives what all give, bounds counted included; and a minimum score
+    leaves the best above it as it was (the exhaustive best when that reaches it)."""
+    import numba
+
+    rng = np.random.default_rng(6)
+    threads = numba.get_num_threads()
+    for _ in range(100):
+        grid, rows, cols, wx, wy, levels = _random_case(rng)
+        pool = max_pool_levels(grid, levels)
+        tb = top_bounds(pool, rows, cols, wx, wy)
+        full = exhaustive_search(grid, rows, cols, wx, wy)
+        min_score = int(full[0] * rng.uniform(0.5, 1.2))
+        try:
+            numba.set_num_threads(1)
+            one = bnb_search(pool, rows, cols, wx, wy, min_score, NO_EXCLUSION, tb)
+        finally:
+            numba.set_num_threads(threads)
+        assert bnb_search(pool, rows, cols, wx, wy, min_score, NO_EXCLUSION, tb) == one
+        assert one[:4] == (full if full[0] >= min_score else (-1, -1, 0, 0))
+
+
 def test_the_top_level_bounds_are_each_nodes_pooled_sum_whatever_the_thread_count():
     """`top_bounds` (on all cores): entry (k * nx + a) * ny + b is the top level's sum for yaw k
     at offsets (-wx + a * top, -wy + b * top), the same with one thread as with all."""
