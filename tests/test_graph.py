@@ -375,7 +375,7 @@ def test_the_graph_closes_the_loops_that_local_slam_alone_leaves_metres_off(loop
     # no loop search at all (a node searches when its index is a multiple of search_every: only node 0, before any
     # submap is finished). min_score=1.0 is not enough: a scan in the robot's own fresh submap can score 1.0
     alone = _run(loop_log, f"filter.search_every={10**9}")
-    assert alone.extras["graph"]["searches"] == 0
+    assert alone.extras["graph"]["searches"] == alone.extras["graph"]["search_bounds"] == 0
     err = relation_errors(graph.times, graph.trajectory, loop_log.relations, loop_min_dt_s=sim_carmen.LOOP_MIN_DT_S)
     err_alone = relation_errors(alone.times, alone.trajectory, loop_log.relations, loop_min_dt_s=sim_carmen.LOOP_MIN_DT_S)
     assert err_alone["loop"]["trans_abs_mean_m"] > 1.0
@@ -383,6 +383,7 @@ def test_the_graph_closes_the_loops_that_local_slam_alone_leaves_metres_off(loop
     assert err["loop"]["trans_abs_mean_m"] < err_alone["loop"]["trans_abs_mean_m"] / 3 and err["trans_abs_mean_m"] < 0.2
     g = graph.extras["graph"]
     assert g["accepted"] > 100 and g["nodes"] == len(graph.extras["step_scans"])
+    assert g["search_bounds"] > g["searches"] > 0  # each search bounds its window's top level at least
     loops = graph.extras["loops"]
     assert (loops["status"] == ACCEPTED).sum() == g["accepted"] and len(loops) == g["candidates"]
 

@@ -83,7 +83,7 @@ def _counts(graph: dict) -> str:
     by = graph.get("by_status", {})
     rejected = ", ".join(f"{v} {k}" for k, v in sorted(by.items()) if k != "accepted") or "none"
     return (f"{graph.get('nodes', 0)} nodes in {graph.get('submaps', 0)} submaps; {graph.get('searches', 0)} branch-and-bound searches"
-            f" found {graph.get('candidates', 0)} candidates: {graph.get('accepted', 0)} accepted, rejected: {rejected}."
+            f" ({graph.get('search_bounds', 0):,} bounds) found {graph.get('candidates', 0)} candidates: {graph.get('accepted', 0)} accepted, rejected: {rejected}."
             f" Optimiser: {graph.get('update_s', 0.0):.2f} s incremental (ISAM2), {graph.get('optimisations', 0)} whole-graph"
             f" optimisations {graph.get('optimise_s', 0.0):.2f} s; search {graph.get('search_s', 0.0):.2f} s;"
             f" largest correction {graph.get('largest_correction_m', 0.0):.2f} m; online map redrawn {graph.get('redraws', 0)} times.")
