@@ -10,7 +10,7 @@ import pytest
 
 from slamlab.config.slam import MapConfig
 from slamlab.slam.grid import NO_FLIP, OccupancyGrid
-from slamlab.slam.raycast import HIT_COUNT_CAP, HIT_UNITS, WALL_STEPS, raycast_update, update_field
+from slamlab.slam.raycast import HIT_COUNT_CAP, HIT_UNITS, WALL_STEPS, raycast_many_bands, raycast_update, update_field
 
 
 def _random_scan(rng: np.random.Generator, spread_m: float, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -91,6 +91,43 @@ def test_insert_many_equals_inserting_one_scan_at_a_time(at_hits):
     assert lo_a.shape == one.shape  # the one-by-one grid lies wholly inside the other
     assert np.array_equal(lo_a, lo_b) and np.array_equal(f_a, f_b)
     assert np.count_nonzero(many.log_odds) == np.count_nonzero(one.log_odds)  # nothing drawn outside it
+
+
+def test_scans_ray_cast_in_row_bands_give_scan_by_scan_values_for_any_band_and_thread_count():
+    """`raycast_many_bands` (a map drawn again, on all cores): whatever the band height and the
+    number of threads, the log-odds are those of `raycast_update` scan after scan, bit for bit
+    (clamping makes the order of a cell's additions matter: many short scans reach the clamps)."""
+    import numba
+
+    rng = np.random.default_rng(5)
+    s = MapConfig(initial_size_m=40.0)
+    g = OccupancyGrid(s, (0.0, 0.0), 0.1)
+    views = [_random_scan(rng, 12.0, 8.0) for _ in range(10)]
+    sensors, scans = [], []
+    for i in range(150):  # ten views seen again and again, so that cells reach the clamps
+        sensor, pts = views[i % 10]
+        scans.append(pts if i % 37 else pts[:0])  # an empty scan now and then
+        sensors.append(sensor)
+    ref = np.zeros(g.shape, dtype=np.float32)
+    for sensor, pts in zip(sensors, scans):
+        rows, cols = g.cells(pts)
+        sr, sc = g.cells(sensor.reshape(1, 2))
+        raycast_update(ref, int(sr[0]), int(sc[0]), rows, cols, np.float32(s.log_odds_occupied), np.float32(s.log_odds_free),
+                       np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold), np.array(NO_FLIP, dtype=np.int64))
+    assert (ref == s.clamp_max).any() and (ref == s.clamp_min).any()
+    rows, cols = g.cells(np.concatenate(scans))
+    sensor_rows, sensor_cols = g.cells(np.array(sensors))
+    starts = np.concatenate([[0], np.cumsum([len(p) for p in scans])]).astype(np.int64)
+    threads = numba.get_num_threads()
+    for band_rows, n_threads in ((1, threads), (7, 1), (64, threads), (g.shape[0], threads)):
+        lo = np.zeros(g.shape, dtype=np.float32)
+        try:
+            numba.set_num_threads(n_threads)
+            raycast_many_bands(lo, sensor_rows, sensor_cols, rows, cols, starts, np.float32(s.log_odds_occupied), np.float32(s.log_odds_free),
+                               np.float32(s.clamp_min), np.float32(s.clamp_max), band_rows)
+        finally:
+            numba.set_num_threads(threads)
+        assert np.array_equal(lo, ref), band_rows
 
 
 @pytest.mark.parametrize("at_hits", [False, True])

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import sys
 
+import numba
 import numpy as np
 
 from slamlab.frames import GridImage
@@ -25,8 +26,8 @@ from slamlab.config.slam import MapConfig
 from slamlab.heap import release_pages
 from slamlab.slam.field_cells import FieldCells, value_codes
 from slamlab.slam.raycast import (
-    WALL_STEPS, copy_nonzero, field_radius_cells, kernel_bank, note_hits, raise_field, raycast_update, raycast_update_noting, refresh_cells,
-    update_field, update_field_bands,
+    WALL_STEPS, copy_nonzero, field_radius_cells, kernel_bank, note_hits, raise_field, raycast_many_bands, raycast_update, raycast_update_noting,
+    refresh_cells, update_field, update_field_bands,
 )
 
 # The `map/` config group's schema is the settings object the grid reads: resolution_m,
@@ -38,6 +39,7 @@ MapSettings = MapConfig
 
 NO_CELLS = np.empty((0, 2), dtype=np.int64)  # `note_hits` with nowhere to list moved walls (no field to keep)
 NO_FLIP = (np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1)  # an empty box of changed cells (`raycast_update`)
+RAY_BAND_ROWS_MIN = 64  # `insert_many` ray-casts in row bands of at least this many rows on all cores
 PARALLEL_FIELD_CELLS = 1 << 20  # a field box of this many cells or more is recomputed in row bands on all cores
 FIELD_BAND_ROWS = 64  # rows a band (each band also reads the R rows of walls either side of it)
 RELEASE_BAND_BYTES = 4 << 20  # `_copy_into` gives an old array over twice this size back in bands of about this size
@@ -259,15 +261,17 @@ class OccupancyGrid:
         ys = np.concatenate([p[:, 1] for p in points_xy] + [sensors_xy[:, 1]])
         self.ensure(xs.min(), ys.min(), xs.max(), ys.max())
         s = self.s
-        flip = np.array(NO_FLIP, dtype=np.int64)
-        for sensor, pts in zip(sensors_xy, points_xy):
-            if len(pts) == 0:
-                continue
-            rows, cols = self.cells(pts)
-            sr, sc = self.cells(np.asarray(sensor, dtype=np.float64).reshape(1, 2))
-            raycast_update(self.log_odds, int(sr[0]), int(sc[0]), rows, cols, np.float32(s.log_odds_occupied), np.float32(s.log_odds_free),
-                           np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold), flip)
-            self._note_hits(pts, rows, cols, NO_CELLS)
+        pts = np.concatenate(points_xy)
+        rows, cols = self.cells(pts)
+        sensor_rows, sensor_cols = self.cells(np.asarray(sensors_xy, dtype=np.float64))
+        starts = np.concatenate([[0], np.cumsum([len(p) for p in points_xy])]).astype(np.int64)
+        # the grid's rows in bands, a few for each core (the result does not depend on them)
+        band_rows = max(RAY_BAND_ROWS_MIN, -(-self.shape[0] // (4 * numba.get_num_threads())))
+        raycast_many_bands(self.log_odds, sensor_rows, sensor_cols, rows, cols, starts, np.float32(s.log_odds_occupied),
+                           np.float32(s.log_odds_free), np.float32(s.clamp_min), np.float32(s.clamp_max), band_rows)
+        # the hits' offsets read nothing of the log-odds (no moved walls to list): taken in the
+        # scans' order after them, they are what scan-by-scan gave
+        self._note_hits(pts, rows, cols, NO_CELLS)
         if self.field is not None:
             self._refresh_field(self.field, 0, self.shape[0], 0, self.shape[1])
 
