@@ -61,11 +61,13 @@ def test_branch_and_bound_returns_the_exhaustive_searchs_best_on_random_maps_and
         assert (score, k, dx, dy) == exhaustive_search(grid, rows, cols, wx, wy)
 
 
-def test_branch_and_bound_gives_the_same_answer_and_bound_count_on_one_thread_as_on_all():
-    """The top nodes are dealt to `BNB_SHARES` searches run side by side: their number is
-    fixed, so one thread gives what all give, bounds counted included; and a minimum score
-    leaves the best above it as it was (the exhaustive best when that reaches it)."""
+def test_branch_and_bound_shared_out_gives_one_searchs_answer_and_its_bound_count_on_any_thread_count(monkeypatch):
+    """A wide search's top nodes are dealt to `BNB_SHARES` searches run side by side: the same
+    candidate as one search (and the exhaustive one, when it reaches the minimum score); their
+    number is fixed, so one thread gives what all give, bounds counted included."""
     import numba
+
+    from slamlab.slam.graph import branch_bound
 
     rng = np.random.default_rng(6)
     threads = numba.get_num_threads()
@@ -75,13 +77,17 @@ def test_branch_and_bound_gives_the_same_answer_and_bound_count_on_one_thread_as
         tb = top_bounds(pool, rows, cols, wx, wy)
         full = exhaustive_search(grid, rows, cols, wx, wy)
         min_score = int(full[0] * rng.uniform(0.5, 1.2))
+        one = bnb_search(pool, rows, cols, wx, wy, min_score, NO_EXCLUSION, tb)  # these windows: one search
+        assert one[:4] == (full if full[0] >= min_score else (-1, -1, 0, 0))
+        monkeypatch.setattr(branch_bound, "SHARED_TOP_NODES", 0)  # every search shared out
         try:
             numba.set_num_threads(1)
-            one = bnb_search(pool, rows, cols, wx, wy, min_score, NO_EXCLUSION, tb)
+            shared = bnb_search(pool, rows, cols, wx, wy, min_score, NO_EXCLUSION, tb)
         finally:
             numba.set_num_threads(threads)
-        assert bnb_search(pool, rows, cols, wx, wy, min_score, NO_EXCLUSION, tb) == one
-        assert one[:4] == (full if full[0] >= min_score else (-1, -1, 0, 0))
+        assert bnb_search(pool, rows, cols, wx, wy, min_score, NO_EXCLUSION, tb) == shared
+        assert shared[:4] == one[:4] and shared[4] >= tb.shape[0]
+        monkeypatch.undo()
 
 
 def test_the_top_level_bounds_are_each_nodes_pooled_sum_whatever_the_thread_count():

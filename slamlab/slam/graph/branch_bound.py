@@ -137,11 +137,12 @@ def top_bounds(pool, rows, cols, wx, wy):
     return out
 
 
-BNB_SHARES = 2  # the top nodes are dealt to this many searches run side by side: a fixed number, so
-# the result and the bound count are the same on any number of threads
+BNB_SHARES = 2  # a wide search's top nodes are dealt to this many searches run side by side: a fixed
+# number, so the result and the bound count are the same on any number of threads
+SHARED_TOP_NODES = 20_000  # a search of this many top nodes or more is shared out (a wide window: tens of
+# metres, every yaw); below, one search on one thread (thread start-up would cost more than it saves)
 
 
-@numba.njit(cache=True, parallel=True)
 def bnb_search(pool, rows, cols, wx, wy, min_score, ex, t_score):
     """Branch and bound over yaw index k (rows / cols' first axis), dx in [-wx, wx], dy in
     [-wy, wy] (cells) on `pool` (`max_pool_levels`), from the top-level bounds `t_score`
@@ -151,25 +152,58 @@ def bnb_search(pool, rows, cols, wx, wy, min_score, ex, t_score):
     level's included, computed here or not). Candidates inside an exclusion box (rows of `ex`
     (B, 6): k_lo, k_hi, dx_lo, dx_hi, dy_lo, dy_hi) are left out.
 
-    The top nodes, best bound first, are dealt in turn to `BNB_SHARES` searches on all cores
-    (each share then holds some of the best nodes); each share finds its own best, and the
-    best of those is the whole window's, with the same tie rule: the same answer as one
-    search, for a little more pruning work than one search would do."""
-    # best bound first, and among equal bounds the smallest (k, dx, dy); a node bounded below
-    # min_score holds no candidate that could be returned, so it is left out (on a wide window
-    # that is ~90 % of them)
+    With `SHARED_TOP_NODES` top nodes or more, they are dealt in turn, best bound first, to
+    `BNB_SHARES` searches on all cores (each share then holds some of the best nodes); each
+    share finds its own best, and the best of those is the whole window's, with the same tie
+    rule: the same answer as one search, for a little more pruning work."""
+    shares = BNB_SHARES if t_score.shape[0] >= SHARED_TOP_NODES else 1
+    if shares > 1:
+        return _bnb_shares(pool, rows, cols, wx, wy, min_score, ex, t_score, shares)
+    return _bnb_one(pool, rows, cols, wx, wy, min_score, ex, t_score)
+
+
+@numba.njit(cache=True, inline="always")
+def _ranked(t_score, min_score):
+    """The top nodes that could hold a candidate (bound >= min_score: on a wide window ~10 %
+    of them), best bound first, and among equal bounds the smallest (k, dx, dy)."""
     keep = np.flatnonzero(t_score >= min_score)
-    ranked = keep[np.argsort(-t_score[keep], kind="mergesort")]
-    found = np.empty((BNB_SHARES, 5), dtype=np.int64)
-    for s in numba.prange(BNB_SHARES):
-        found[s] = _bnb_share(pool, rows, cols, wx, wy, min_score, ex, t_score, ranked[s::BNB_SHARES])
-    best, bk, bdx, bdy = min_score - 1, rows.shape[0], wx + 1, wy + 1
+    return keep[np.argsort(-t_score[keep], kind="mergesort")]
+
+
+@numba.njit(cache=True)
+def _bnb_one(pool, rows, cols, wx, wy, min_score, ex, t_score):
+    """`bnb_search` in one share, on this thread: (score, k, dx, dy, nodes)."""
+    sc, k, dx, dy, nodes = _bnb_share(pool, rows, cols, wx, wy, min_score, ex, t_score, _ranked(t_score, min_score))
+    if sc < min_score:
+        return -1, -1, 0, 0, nodes + t_score.shape[0]
+    return sc, k, dx, dy, nodes + t_score.shape[0]
+
+
+@numba.njit(cache=True, parallel=True)
+def _bnb_shares(pool, rows, cols, wx, wy, min_score, ex, t_score, shares):
+    """`bnb_search` in `shares` shares on all cores: (score, k, dx, dy, nodes)."""
+    ranked = _ranked(t_score, min_score)
+    each = np.empty((shares, 5), dtype=np.int64)
+    for s in numba.prange(shares):
+        part = ranked[s::shares]
+        sc, k, dx, dy, nodes = _bnb_share(pool, rows, cols, wx, wy, min_score, ex, t_score, part)
+        each[s, 0] = sc
+        each[s, 1] = k
+        each[s, 2] = dx
+        each[s, 3] = dy
+        each[s, 4] = nodes
+    best = min_score - 1
+    bk = rows.shape[0]
+    bdx = wx + 1
+    bdy = wy + 1
     nodes = t_score.shape[0]
-    for s in range(BNB_SHARES):
-        sc, k, dx, dy = found[s, 0], found[s, 1], found[s, 2], found[s, 3]
-        nodes += found[s, 4]
-        if sc > best or (sc == best and _before(k, dx, dy, bk, bdx, bdy)):
-            best, bk, bdx, bdy = sc, k, dx, dy
+    for s in range(shares):
+        nodes += each[s, 4]
+        if each[s, 0] > best or (each[s, 0] == best and _before(each[s, 1], each[s, 2], each[s, 3], bk, bdx, bdy)):
+            best = each[s, 0]
+            bk = each[s, 1]
+            bdx = each[s, 2]
+            bdy = each[s, 3]
     if best < min_score:
         return -1, -1, 0, 0, nodes
     return best, bk, bdx, bdy, nodes
