@@ -257,11 +257,10 @@ class OccupancyGrid:
         the same log-odds and field (tested), for a map drawn again from scratch."""
         if not len(points_xy):
             return
-        xs = np.concatenate([p[:, 0] for p in points_xy] + [sensors_xy[:, 0]])
-        ys = np.concatenate([p[:, 1] for p in points_xy] + [sensors_xy[:, 1]])
-        self.ensure(xs.min(), ys.min(), xs.max(), ys.max())
-        s = self.s
         pts = np.concatenate(points_xy)
+        reach = np.concatenate([pts, sensors_xy])
+        self.ensure(*reach.min(axis=0), *reach.max(axis=0))
+        s = self.s
         rows, cols = self.cells(pts)
         sensor_rows, sensor_cols = self.cells(np.asarray(sensors_xy, dtype=np.float64))
         starts = np.concatenate([[0], np.cumsum([len(p) for p in points_xy])]).astype(np.int64)

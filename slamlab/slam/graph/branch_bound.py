@@ -156,9 +156,8 @@ def bnb_search(pool, rows, cols, wx, wy, min_score, ex, t_score):
     `BNB_SHARES` searches on all cores (each share then holds some of the best nodes); each
     share finds its own best, and the best of those is the whole window's, with the same tie
     rule: the same answer as one search, for a little more pruning work."""
-    shares = BNB_SHARES if t_score.shape[0] >= SHARED_TOP_NODES else 1
-    if shares > 1:
-        return _bnb_shares(pool, rows, cols, wx, wy, min_score, ex, t_score, shares)
+    if t_score.shape[0] >= SHARED_TOP_NODES:
+        return _bnb_shares(pool, rows, cols, wx, wy, min_score, ex, t_score, BNB_SHARES)
     return _bnb_one(pool, rows, cols, wx, wy, min_score, ex, t_score)
 
 
