@@ -444,3 +444,69 @@ def test_a_wrong_closure_added_to_a_runs_graph_leaves_its_optimum_within_2_cm(gr
     g.optimise_batch()
     assert sum(g.active) > 100  # a graph held together by many closures
     assert np.hypot(*(g.poses[:, :2] - without[:, :2]).T).max() <= 0.02
+
+
+# ---- the loop search's screen -----------------------------------------------------------------------
+def _wall_points(segments, pose, step_m=0.05, max_r=30.0):
+    """Points every `step_m` along wall `segments` ((x0, y0, x1, y1), m) within `max_r` of
+    `pose`, in its body frame (no occlusion: enough for a submap's walls)."""
+    out = []
+    for x0, y0, x1, y1 in segments:
+        n = max(int(math.hypot(x1 - x0, y1 - y0) / step_m), 1)
+        t = np.linspace(0.0, 1.0, n + 1)
+        out.append(np.column_stack([x0 + t * (x1 - x0), y0 + t * (y1 - y0)]))
+    xy = np.vstack(out)
+    xy = xy[np.hypot(xy[:, 0] - pose[0], xy[:, 1] - pose[1]) < max_r]
+    return se2_between(np.asarray(pose, dtype=float), np.column_stack([xy, np.zeros(len(xy))]))[:, :2]
+
+
+def _two_place_submaps():
+    """Two finished submaps of two nodes each: a 12 x 8 m room with a pillar around (0, 0) and
+    an L-shaped corridor junction around (60, 0)."""
+    from slamlab.slam.graph.submaps import Submaps
+    from slamlab.slam.grid import MapSettings
+    from slamlab.slam.scan import ScanPoints
+
+    room = [(-6, -4, 6, -4), (6, -4, 6, 4), (6, 4, -6, 4), (-6, 4, -6, -4), (1, 0, 2, 0), (2, 0, 2, 1), (2, 1, 1, 1), (1, 1, 1, 0)]
+    junction = [(50, -1, 70, -1), (50, 1, 58, 1), (60, 1, 70, 1), (58, 1, 58, 12), (60, 1, 60, 12)]
+    submaps = Submaps(MapSettings(resolution_m=0.05), 2, 0.1, 0.3, overlap=False, field_when_finished=True)
+    poses = [(-2.0, -1.0, 0.3), (0.0, -2.0, 0.5), (55.0, 0.0, 0.0), (59.0, 0.0, 1.2)]
+    for node, (walls, pose) in enumerate(zip((room, room, junction, junction), poses)):
+        submaps.insert(node, np.array(pose), ScanPoints(_wall_points(walls, pose), np.zeros(2)))
+    return submaps, junction
+
+
+def test_the_screen_scores_the_submap_a_scan_was_taken_in_above_another_place():
+    """A scan taken in the junction, searched over a 10 m window at every yaw: the junction's
+    submap scores near 1 on the coarse grid, the room's clearly less, whichever is nearer."""
+    submaps, junction = _two_place_submaps()
+    pose = np.array([57.0, 0.2, 2.0])
+    query = _wall_points(junction, pose)
+    search = LoopSearch(SearchSettings(0.1, 6, 0.3, 0.5, 0.9, 1.0, 0.35, 2, 30.0, screen_resolution_m=0.4), 0.05, 4, 0.03, 0.01)
+    room_sm, junction_sm = submaps.finished
+    # the estimate 4 m off in the junction, and where the room is for the room (the robot lost: both plausible)
+    scores = search.screen(query, submaps, [(room_sm, np.array([0.0, 0.0, 0.0]), 10.0, math.pi),
+                                            (junction_sm, pose + np.array([3.0, -2.0, 0.4]), 10.0, math.pi)])
+    assert search.screened == 2
+    assert scores[1] > 0.85 and scores[1] > scores[0] + 0.2
+    assert len(search.screen(query[:5], submaps, [(junction_sm, pose, 10.0, math.pi)])) == 1  # too few points: no score
+    assert search.screen(query[:5], submaps, [(junction_sm, pose, 10.0, math.pi)])[0] == -1.0
+
+
+def test_a_wide_search_takes_the_untied_submaps_the_screen_scores_best_not_the_nearest(monkeypatch):
+    # four untied submaps in reach, nearest first 0, 1, 2, 3 (by where each was seen from); the screen
+    # says 3, then 2. Ties go to the nearer; without the screen's points, the nearest as before (one loop
+    # candidate: the nearest both ways, then the nearest others, three in all)
+    submaps = _finished([(1, 0), (2, 0), (3, 0), (4, 0)], [(1, 0), (2, 0), (3, 0), (4, 0)], [5, 5, 5, 5])
+    search = LoopSearch(SearchSettings(0.1, 6, 0.55, 0.5, 0.9, 1.0, 0.35, 3, 30.0, screen_resolution_m=0.4, screen_keep=2), 0.05, 4, 0.03, 0.01)
+    monkeypatch.setattr(search, "screen", lambda query, sm, targets: np.array([0.6, -1.0, 0.8, 0.9])[: len(targets)])
+    windows = np.tile([20.0, math.pi], (4, 1))
+    pose, tied = np.zeros(3), np.full(4, 200.0)
+
+    def reach(screen):
+        return [sm for sm, *_ in search.submaps_in_reach(pose, submaps, np.zeros((4, 3)), windows, tied, None, screen)]
+
+    assert reach(np.zeros((30, 2))) == ["submap 3", "submap 2", "submap 0", "submap 1"]  # two screened in, then the nearest others
+    assert reach(None) == ["submap 0", "submap 1", "submap 2"]
+    monkeypatch.setattr(search, "screen", lambda query, sm, targets: np.full(len(targets), 0.7))
+    assert reach(np.zeros((30, 2))) == ["submap 0", "submap 1", "submap 2", "submap 3"]

@@ -366,6 +366,17 @@ class GraphFilterConfig:
     # 0.0198-0.0305), ACES 0.0380 at 0.5 m steps (0.0409), 0.0392-0.0418 at the others (0.0394-0.0485); worst causal
     # better at 6 of 12 steps, worse at 5; hospital p10 0.566 (0.571); sim_loops worst ATE 0.174 / 0.452 m at 1.5 / 2.0
     # (0.226 / 0.396)
+    screen_resolution_m: float = 0.4  # a wide search (a long loop's return) first scores every submap not tied to the node
+    # (loop_min_path_m) in reach on a grid this coarse (m; 0: off) and searches the `screen_keep` best of them, instead of
+    # the nearest: tens of metres of drift put the estimate nearer to other submaps than to the place it is (the hospital's
+    # right-hand loop: the estimate 12-20 m off, the first visit's submaps 8th-19th nearest of ~60). On against off
+    # (2026-11-30, bench_graph.py --only logs,sim_loops --steps 0.5,0.25, same machine and hour): hospital p10 0.469 -> 0.597,
+    # its corridors at right angles again (largest correction 73 m), whole run 55 -> 93 s (screen 23 s); Intel worst
+    # smoothed 0.0194 -> 0.0190 m, ACES 0.0379 -> 0.0378, worst causal 0.0456 -> 0.0447; sim_loops worst ATE 0.166 / 0.454 ->
+    # 0.180 / 0.462 m at 1.5 / 2.0 (mean 0.121 / 0.335 -> 0.114 / 0.304, worst aligned 0.137 / 0.235 -> 0.095 / 0.231).
+    # 0.8 m was cheaper (screen 11 s) and left the hospital's right wing turned
+    screen_keep: int = 2  # ... this many
+    screen_points: int = 128  # the screen scores at most this many of the query's points (evenly spread over it)
     # ---- verification: a closure that moves its node by more than trust_m / trust_rad needs a group of mutually
     # consistent ones
     trust_m: float = 0.1  # a closure asking for a correction within this (m) ...
@@ -400,14 +411,14 @@ class GraphFilterConfig:
 
     def __post_init__(self) -> None:
         g = self.GROUP
-        for name in ("submap_nodes", "search_levels", "search_every", "wide_every", "max_submaps_per_node", "group_size"):
+        for name in ("submap_nodes", "search_levels", "search_every", "wide_every", "max_submaps_per_node", "group_size", "screen_keep", "screen_points"):
             require_int(g, name, getattr(self, name), 2 if name in ("submap_nodes",) else 1)
         if self.search_levels > 12:
             raise ConfigError(f"{g}.search_levels", f"must be at most 12, got {self.search_levels!r}")
         for name in ("search_resolution_m", "window_max_m", "ambiguity_m", "ambiguity_rad", "loop_sigma_m", "loop_sigma_rad", "trust_m", "trust_rad", "redraw_m", "redraw_rad",
                      "local_sigma_m", "local_sigma_rad", "loss_scale", "prune_m", "prune_rad", "consistency_m", "consistency_rad"):
             require_positive(g, name, getattr(self, name))
-        for name in ("local_yaw_half_width_rad", "window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "query_m", "loop_min_path_m", "group_extent_m", "group_span_m",
+        for name in ("local_yaw_half_width_rad", "screen_resolution_m", "window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "query_m", "loop_min_path_m", "group_extent_m", "group_span_m",
                      "consistency_per_m", "consistency_rad_per_m", "local_sigma_per_m", "local_sigma_per_rad", "local_sigma_along_per_m", "local_slip_per_m"):
             require_nonnegative(g, name, getattr(self, name))
         for name in ("min_score", "min_refined_score", "ambiguity_ratio"):

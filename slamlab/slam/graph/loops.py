@@ -12,6 +12,10 @@ nearest others: `LoopSearch.submaps_in_reach`, `max_submaps_per_node`):
    differs by a shift alone (a corridor slid along its length) the match still says where the
    robot is across the corridor and how it is turned: it stays, with no weight along that line;
 4. what passes is a candidate closure: the node's pose seen from the submap's anchor node.
+From a wide window (a long loop's return, `screen_resolution_m` set) the loop candidates are
+not the nearest untied submaps but the `screen_keep` of them whose coarse search (0.4 m cells,
+a few points) scores best: after tens of metres of drift the estimate is nearer to other
+submaps than to the place the robot is in (`LoopSearch.screen`).
 The window is the uncertainty of the estimate: `window_m` right after an accepted closure,
 growing by `window_per_m` per metre travelled since (likewise the yaw window, up to a full
 turn), so after a long loop the search covers whole submaps at every yaw.
@@ -44,6 +48,7 @@ REFUTED = "refuted"  # a group that, optimised in, left earlier closures far off
 
 WALL_MARGIN_M = 0.3  # a beam passing through a wall this close to its end (m) is not a contradiction
 AMBIGUITY_SEARCH = 0.9  # the second best is searched down to this share of the ambiguity ratio, then refined
+SCREEN_LEVELS = 4  # branch-and-bound levels of the screen's coarse grids (the top node 8 cells a side)
 MIN_POINTS = 20  # a scan with fewer search points is not searched (too little to tell places apart)
 _NO_EXT = np.zeros((0, 6))
 _NO_LUT = np.zeros(0)
@@ -111,6 +116,9 @@ class SearchSettings:
     ambiguity_rad: float
     max_submaps: int
     loop_min_path_m: float
+    screen_resolution_m: float = 0.0
+    screen_keep: int = 2
+    screen_points: int = 128
 
 
 class LoopSearch:
@@ -125,16 +133,21 @@ class LoopSearch:
         self.searches = 0  # branch-and-bound searches run
         self.nodes_scored = 0  # bounds computed by them
         self.seconds = 0.0
+        self.screened = 0  # coarse searches run by the screen (`screen`)
+        self.screen_seconds = 0.0
 
     def submaps_in_reach(self, pose: FloatArray, submaps: Submaps, anchors_global: FloatArray,
-                         windows: FloatArray, tied_m: FloatArray, which: np.ndarray | None = None) -> list[tuple[FinishedSubmap, FloatArray, tuple[float, float], float]]:
+                         windows: FloatArray, tied_m: FloatArray, which: np.ndarray | None = None,
+                         screen: FloatArray | None = None) -> list[tuple[FinishedSubmap, FloatArray, tuple[float, float], float]]:
         """(submap, the node's pose in the submap's frame, window) for the finished submaps
         whose known area their window (`windows` (S, 2): half width m, half yaw rad) around
         `pose` reaches: the loop candidates first (one or two), then the `max_submaps` - 1
         nearest others (see below). `anchors_global` (S, 3): each finished submap's anchor's
         estimate; `tied_m` (S,): how far each is from the node since the graph last tied them
         (m of path), carried with each; `which` (S,): the finished submaps these rows are
-        (default: all, in order)."""
+        (default: all, in order). With `screen` (the query points, node frame) and a screen
+        resolution set, the loop candidates are instead the `screen_keep` untied submaps whose
+        coarse search scores best (`screen`)."""
         idx = np.arange(len(submaps.finished)) if which is None else which
         frames = se2_compose(anchors_global, se2_inverse(submaps.finished_anchor_local[idx]))  # submap frame -> global
         guess = se2_between(frames, pose)
@@ -157,9 +170,37 @@ class LoopSearch:
             nearest_seen = untied[int(np.argmin(seen_from))]
             if nearest_seen != untied[0]:
                 loop = np.array([nearest_seen, untied[0]])
+        if screen is not None and self.s.screen_resolution_m > 0 and len(untied) > self.s.screen_keep:
+            # far from any tie, where the estimate is says little of which submap the robot is in: the
+            # coarse search's best score says more (untied is nearest first: ties go to the nearer)
+            scores = self.screen(screen, submaps, [(submaps.finished[idx[j]], guess[j], float(windows[j, 0]), float(windows[j, 1])) for j in untied])
+            loop = untied[np.argsort(-scores, kind="stable")[: self.s.screen_keep]]
         others = near[~np.isin(near, loop)][: max(self.s.max_submaps - 1, 0)]
         near = np.concatenate([loop, others])
         return [(submaps.finished[idx[j]], guess[j], (float(windows[j, 0]), float(windows[j, 1])), float(tied_m[j])) for j in near]
+
+    def screen(self, query: FloatArray, submaps: Submaps, targets: list[tuple[FinishedSubmap, FloatArray, float, float]]) -> FloatArray:
+        """(T,) the best branch-and-bound score of the `query` points (node frame, m) in each
+        target (submap, the node's pose in its frame, half width m, half yaw rad) on the
+        submaps' coarse grids (`screen_resolution_m`); -1 where none reaches `min_score`."""
+        t0 = time.perf_counter()
+        s = self.s
+        out = np.full(len(targets), -1.0)
+        pts = voxel_filter(query, s.screen_resolution_m)
+        if len(pts) > s.screen_points:  # evenly spread over the query (a ranking, not a match: a third of the time)
+            pts = pts[np.linspace(0, len(pts) - 1, s.screen_points).astype(np.int64)]
+        if len(pts) >= MIN_POINTS:
+            yaw_step = yaw_step_for(pts, s.screen_resolution_m)
+            for i, (sm, guess, half_xy, half_yaw) in enumerate(targets):
+                win = _window_in(sm, guess, half_xy, half_yaw)
+                if win is None:
+                    continue
+                best = CorrelativeSearch(submaps.screen_grid(sm, s.screen_resolution_m, SCREEN_LEVELS), pts, win, yaw_step).best(s.min_score)
+                self.screened += 1
+                if best.found:
+                    out[i] = best.score
+        self.screen_seconds += time.perf_counter() - t0
+        return out
 
     def search(self, node: int, pose: FloatArray, fine_pts: FloatArray, own: FloatArray, origin: FloatArray, submaps: Submaps, reach: list[tuple[FinishedSubmap, FloatArray, tuple[float, float], float]],
                poses: FloatArray) -> list[LoopCandidate]:
@@ -177,14 +218,9 @@ class LoopSearch:
         for sm, guess, (half_xy, half_yaw), tied in reach:
             grid = submaps.search_grid(sm, s.resolution_m, s.levels)
             field_u8, state_u8 = submaps.arrays(sm)
-            # the window, cut to the submap's area (the robot stood where the submap saw from)
-            H, W = sm.shape
-            lo = np.maximum(guess[:2] - half_xy, sm.origin)
-            hi = np.minimum(guess[:2] + half_xy, sm.origin + np.array([W, H]) * sm.resolution_m)
-            if np.any(hi < lo):
+            win = _window_in(sm, guess, half_xy, half_yaw)
+            if win is None:
                 continue
-            centre = (lo + hi) / 2
-            win = SearchWindow(np.array([centre[0], centre[1], guess[2]]), float(hi[0] - lo[0]) / 2, float(hi[1] - lo[1]) / 2, half_yaw)
             cs = CorrelativeSearch(grid, pts, win, yaw_step)
             best = cs.best(s.min_score)
             self.searches += 1
@@ -251,6 +287,18 @@ class LoopSearch:
                      p, p, _NO_OFFSETS, self.refine_step_m, yaw_step, self.refine_levels, 0.0, 0.0, out, score, evals,
                      _NO_EXT, _NO_LUT, 0.0, 0.0)
         return out[0], float(score[0]) / max(len(p), 1)
+
+
+def _window_in(sm: FinishedSubmap, guess: FloatArray, half_xy: float, half_yaw: float) -> SearchWindow | None:
+    """The window +-`half_xy` (m), +-`half_yaw` (rad) around `guess` (submap frame), cut to
+    the submap's area (the robot stood where the submap saw from); None when they miss."""
+    H, W = sm.shape
+    lo = np.maximum(guess[:2] - half_xy, sm.origin)
+    hi = np.minimum(guess[:2] + half_xy, sm.origin + np.array([W, H]) * sm.resolution_m)
+    if np.any(hi < lo):
+        return None
+    centre = (lo + hi) / 2
+    return SearchWindow(np.array([centre[0], centre[1], guess[2]]), float(hi[0] - lo[0]) / 2, float(hi[1] - lo[1]) / 2, half_yaw)
 
 
 def _along_line(best: FloatArray, other: FloatArray, max_yaw_rad: float) -> FloatArray | None:

@@ -90,7 +90,8 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
     graph = PoseGraph(start, GraphNoise(s.local_sigma_m, s.local_sigma_per_m, s.local_sigma_rad, s.local_sigma_per_rad,
                                         s.loop_sigma_m, s.loop_sigma_rad, s.loss, s.loss_scale, s.local_sigma_along_per_m))
     search = LoopSearch(SearchSettings(s.search_resolution_m, s.search_levels, s.min_score, s.min_refined_score,
-                                       s.ambiguity_ratio, s.ambiguity_m, s.ambiguity_rad, s.max_submaps_per_node, s.loop_min_path_m),
+                                       s.ambiguity_ratio, s.ambiguity_m, s.ambiguity_rad, s.max_submaps_per_node, s.loop_min_path_m,
+                                       s.screen_resolution_m, s.screen_keep, s.screen_points),
                         refine_step_m=ms.resolution_m, refine_levels=matcher.refine_levels + 1,
                         sigma_m=s.loop_sigma_m, sigma_rad=s.loop_sigma_rad)
     policy = WindowPolicy(s.window_m, s.window_per_m, s.window_max_m, s.window_yaw_rad, s.window_yaw_per_m)
@@ -241,6 +242,8 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
                 "largest_correction_m": float(max([o.moved_max_m for o in graph.optimisations], default=0.0)),
                 "final_optimise_s": final_s,
                 "search_s": float(search.seconds),
+                "screened": int(search.screened),
+                "screen_s": float(search.screen_seconds),
             },
             "loop_candidates": candidates,
             "loops": closures_table(candidates, graph, times[step_scans], smooth),
@@ -293,9 +296,11 @@ def _search_loops(k: int, query: FloatArray, own: FloatArray, origin: FloatArray
     if k % wide_every:  # wide searches (a long loop's return) only from every `wide_every`-th node
         windows = windows[~wide]
         keep = np.flatnonzero(~wide)
+        screen = None
     else:
         keep = np.arange(len(anchors))
-    reach = search.submaps_in_reach(poses[k], submaps, poses[anchors[keep]], windows, drift_m[keep], keep)
+        screen = query if wide.any() else None
+    reach = search.submaps_in_reach(poses[k], submaps, poses[anchors[keep]], windows, drift_m[keep], keep, screen)
     return search.search(k, poses[k], query, own, origin, submaps, reach, poses)
 
 

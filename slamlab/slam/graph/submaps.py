@@ -159,6 +159,8 @@ class Submaps:
         self._arrays = _Recent(UNPACKED)
         self._grids = _Recent(UNPACKED)
         self._packed_bytes = 0
+        self._screen: dict[tuple[int, float, int], SearchGrid] = {}
+        self._screen_bytes = 0
 
     def arrays(self, sm: FinishedSubmap) -> tuple[np.ndarray, np.ndarray]:
         """A finished submap's (field codes, cell states), unpacked (kept for the last few)."""
@@ -168,6 +170,16 @@ class Submaps:
         """A finished submap's branch-and-bound grid (`search_grid_of`; kept for the last few)."""
         return self._grids.get_or_make((sm.index, search_res_m, levels),  # type: ignore[return-value]
                                        lambda: search_grid_of(self.arrays(sm)[0], sm.origin, sm.resolution_m, search_res_m, levels))
+
+    def screen_grid(self, sm: FinishedSubmap, screen_res_m: float, levels: int) -> SearchGrid:
+        """A finished submap's coarse search grid for the loop search's screen (`search_grid_of`
+        at `screen_res_m`): made once and kept (a few kB: the screen reads every untied submap)."""
+        key = (sm.index, screen_res_m, levels)
+        grid = self._screen.get(key)
+        if grid is None:
+            grid = self._screen[key] = search_grid_of(self.arrays(sm)[0], sm.origin, sm.resolution_m, screen_res_m, levels)
+            self._screen_bytes += grid.nbytes
+        return grid
 
     def matching(self) -> ActiveSubmap:
         """The submap scans are matched against: the oldest active one."""
@@ -241,4 +253,4 @@ class Submaps:
     def memory_mb(self) -> float:
         """MB held: the active submaps' grids, the finished ones packed, and those unpacked."""
         active = sum(s.grid.nbytes for s in self.active)
-        return (active + self._packed_bytes + self._arrays.nbytes + self._grids.nbytes) / 1e6
+        return (active + self._packed_bytes + self._arrays.nbytes + self._grids.nbytes + self._screen_bytes) / 1e6
