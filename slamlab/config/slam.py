@@ -373,7 +373,11 @@ class GraphFilterConfig:
     # (2026-11-30, bench_graph.py --only logs,sim_loops --steps 0.5,0.25, same machine and hour): hospital p10 0.469 -> 0.597,
     # its corridors at right angles again (largest correction 73 m), whole run 55 -> 93 s (screen 23 s); Intel worst
     # smoothed 0.0194 -> 0.0190 m, ACES 0.0379 -> 0.0378, worst causal 0.0456 -> 0.0447; sim_loops worst ATE 0.166 / 0.454 ->
-    # 0.180 / 0.462 m at 1.5 / 2.0 (mean 0.121 / 0.335 -> 0.114 / 0.304, worst aligned 0.137 / 0.235 -> 0.095 / 0.231).
+    # 0.180 / 0.462 m at 1.5 / 2.0 (mean 0.121 / 0.335 -> 0.114 / 0.304, worst aligned 0.137 / 0.235 -> 0.095 / 0.231);
+    # corridor probe (worlds 0-3) worst smoothed 2.162 -> 0.048 m at 2x (world 0 lost its loop without the screen on this
+    # machine's bits) and 0.054 -> 0.063 at 3x, worst causal 2.187 / 0.168 -> 0.119 / 0.127. With the steps jittered by
+    # +-0.02 (--jitter=-0.02,0.02) it is mixed: ACES 0.25 worst 0.0411 / 0.0594 -> 0.0388 / 0.0546 (smoothed / causal), ACES
+    # 0.5 0.0374 / 0.0453 -> 0.0389 / 0.0485, Intel 0.25 causal 0.0195 -> 0.0242, Intel 0.5 unchanged (0.0203 / 0.0398).
     # 0.8 m was cheaper (screen 11 s) and left the hospital's right wing turned
     screen_keep: int = 2  # ... this many
     screen_points: int = 128  # the screen scores at most this many of the query's points (evenly spread over it)
