@@ -78,9 +78,7 @@ def file_digest(path: Path) -> str:
                 h.update(f"{key} {a.dtype.str} {a.shape}\n".encode())
                 h.update(np.ascontiguousarray(a).tobytes())
     elif path.name == RunFile.METRICS:
-        kept = _without_volatile(json.loads(path.read_text()), VOLATILE)
-        kept.pop(CONSISTENCY_KEY, None)
-        h.update(json.dumps(kept, sort_keys=True).encode())
+        h.update(json.dumps(kept_metrics(path), sort_keys=True).encode())
     elif path.name == RunFile.STEPS_CSV:
         rows = list(csv.reader(io.StringIO(path.read_text())))
         keep = [i for i, name in enumerate(rows[0]) if not VOLATILE.search(name)]

@@ -165,16 +165,16 @@ class LoopSearch:
         # always be the last few submaps
         untied = near[tied_m[near] >= self.s.loop_min_path_m]
         loop = untied[:1]
-        if len(untied):
-            seen_from = np.hypot(guess[untied, 0] - submaps.finished_view[idx[untied], 0], guess[untied, 1] - submaps.finished_view[idx[untied], 1])
-            nearest_seen = untied[int(np.argmin(seen_from))]
-            if nearest_seen != untied[0]:
-                loop = np.array([nearest_seen, untied[0]])
         if screen is not None and self.s.screen_resolution_m > 0 and len(untied) > self.s.screen_keep:
             # far from any tie, where the estimate is says little of which submap the robot is in: the
             # coarse search's best score says more (untied is nearest first: ties go to the nearer)
             scores = self.screen(screen, submaps, [(submaps.finished[idx[j]], guess[j], float(windows[j, 0]), float(windows[j, 1])) for j in untied])
             loop = untied[np.argsort(-scores, kind="stable")[: self.s.screen_keep]]
+        elif len(untied):
+            seen_from = np.hypot(guess[untied, 0] - submaps.finished_view[idx[untied], 0], guess[untied, 1] - submaps.finished_view[idx[untied], 1])
+            nearest_seen = untied[int(np.argmin(seen_from))]
+            if nearest_seen != untied[0]:
+                loop = np.array([nearest_seen, untied[0]])
         others = near[~np.isin(near, loop)][: max(self.s.max_submaps - 1, 0)]
         near = np.concatenate([loop, others])
         return [(submaps.finished[idx[j]], guess[j], (float(windows[j, 0]), float(windows[j, 1])), float(tied_m[j])) for j in near]
