@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 
-def cli_env(cache: Path | None = None) -> dict[str, str]:
-    env = {**os.environ, "MPLBACKEND": "Agg"}
+def cli_env(cache: Path | None = None, extra: dict[str, str] | None = None) -> dict[str, str]:
+    env = {**os.environ, "MPLBACKEND": "Agg", **(extra or {})}
     if cache is not None:
         env["SLAMLAB_CACHE_DIR"] = str(cache)
     return env
@@ -27,9 +27,10 @@ def slamlab_start(args: list[str], cwd: Path, cache: Path | None = None) -> subp
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def slamlab_cli(args: list[str], cwd: Path, cache: Path | None = None, timeout: float = 900) -> subprocess.CompletedProcess:
-    """`slamlab ARGS`, waited for."""
-    return subprocess.run([sys.executable, "-m", "slamlab.cli.app", *args], cwd=cwd, env=cli_env(cache),
+def slamlab_cli(args: list[str], cwd: Path, cache: Path | None = None, timeout: float = 900,
+                env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """`slamlab ARGS`, waited for (`env`: variables set on top of this process's)."""
+    return subprocess.run([sys.executable, "-m", "slamlab.cli.app", *args], cwd=cwd, env=cli_env(cache, env),
                           capture_output=True, text=True, timeout=timeout)
 
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from slamlab.geometry import FloatArray, se2_between, se2_compose
 from slamlab.slam.graph.loops import match_covariance
+from slamlab.slam.graph.small_linalg import from_eig, sym_eig
 from slamlab.slam.graph.submaps import FinishedSubmap, Submaps
 from slamlab.slam.grid import MapSettings, OccupancyGrid
 from slamlab.slam.matcher import LikelihoodFieldMatcher, MatchPoints, voxel_filter
@@ -106,10 +107,9 @@ class LocalSlam:
         if grid is None:
             return np.zeros((3, 3))
         cov = match_covariance(grid.field_cells, grid.origin, grid.res, pose, self.matcher.fine_points(scan), 0.0, 0.0)
-        w, v = np.linalg.eigh(cov[:2, :2])
-        w = np.minimum(w, cap)
+        w, v = sym_eig(np.ascontiguousarray(cov[:2, :2]))
         out = np.zeros((3, 3))
-        out[:2, :2] = (v * w) @ v.T
+        out[:2, :2] = from_eig(np.minimum(w, cap), v)
         return out
 
     def remember(self, node: int, path_m: float, points_xy: FloatArray, span_m: float) -> None:

@@ -33,6 +33,7 @@ import numpy as np
 from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, wrap_angle
 from slamlab.slam.field_cells import FieldCells
 from slamlab.slam.graph.branch_bound import CorrelativeSearch, SearchWindow, yaw_step_for
+from slamlab.slam.graph.small_linalg import from_eig, matmul, sym_eig
 from slamlab.slam.graph.submaps import FIELD_LUT, FinishedSubmap, Submaps
 from slamlab.slam.matcher import field_search, score_field, voxel_filter
 from slamlab.slam.raycast import line_start, line_step
@@ -255,7 +256,7 @@ class LoopSearch:
                 # along the line of equally good poses (a corridor's length) the match says
                 # nothing: keep the estimate's place on it, and no weight there
                 refined_pose = refined_pose.copy()
-                refined_pose[:2] += float((guess[:2] - refined_pose[:2]) @ along) * along
+                refined_pose[:2] += ((guess[0] - refined_pose[0]) * along[0] + (guess[1] - refined_pose[1]) * along[1]) * along
             # the closure joins the query node to the submap's node nearest the match: the
             # submap's content there was drawn from that node's and its neighbours' scans, so
             # local SLAM's drift between the submap's first node and that one stays out of it
@@ -399,8 +400,8 @@ def match_covariance(field: np.ndarray | FieldCells, origin: FloatArray, res_m: 
                          p, res_m, res_m / max(float(np.max(np.hypot(p[:, 0], p[:, 1]))), 1.0))
     c, s = np.cos(pose[2]), np.sin(pose[2])
     rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # node frame -> submap frame
-    info = rot.T @ (-hess) @ rot
-    w, v = np.linalg.eigh((info + info.T) / 2)
+    info = matmul(matmul(np.ascontiguousarray(rot.T), np.ascontiguousarray(-hess, dtype=np.float64)), rot)
+    w, v = sym_eig((info + info.T) / 2)
     w = np.maximum(w, 1.0 / MAX_SIGMA_M**2)  # a flat or concave direction: pinned by nothing
-    cov = (v / w) @ v.T
+    cov = from_eig(1.0 / w, v)
     return cov + np.diag([sigma_m**2, sigma_m**2, sigma_rad**2])

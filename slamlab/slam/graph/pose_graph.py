@@ -36,6 +36,7 @@ import gtsam
 import numpy as np
 
 from slamlab.geometry import FloatArray, se2_between, se2_compose, wrap_angle
+from slamlab.slam.graph.small_linalg import mahalanobis_sq
 
 
 @dataclass(frozen=True, slots=True)
@@ -220,7 +221,7 @@ class PoseGraph:
         d = se2_between(z, se2_between(self._x[a], self._x[i]))
         d[:, 2] = wrap_angle(d[:, 2])
         cov = np.array([self.loop_cov[j] for j in loops]) + np.diag([m**2, m**2, rad**2])
-        q = np.einsum("li,li->l", d, np.linalg.solve(cov, d[..., None])[..., 0])
+        q = mahalanobis_sq(d, cov)
         return q > 1.0
 
     # ---- internals

@@ -43,6 +43,7 @@ from slamlab.slam.graph.local import LocalSlam
 from slamlab.slam.graph.particles import ParticleTracker
 from slamlab.slam.graph.loops import ACCEPTED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings, WindowPolicy
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
+from slamlab.slam.graph.small_linalg import sym_eig
 from slamlab.slam.graph.submaps import Submaps
 from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings
 from slamlab.slam.mapping import map_from_trajectory
@@ -330,7 +331,7 @@ def closures_table(candidates: list[LoopCandidate], graph: PoseGraph, node_times
         "node_x": node_pose[:, 0], "node_y": node_pose[:, 1], "match_x": match_pose[:, 0], "match_y": match_pose[:, 1],
         "moved_m": np.hypot(match_pose[:, 0] - node_pose[:, 0], match_pose[:, 1] - node_pose[:, 1]),
         "final_x": final[nodes, 0], "final_y": final[nodes, 1], "anchor_x": final[anchors, 0], "anchor_y": final[anchors, 1],
-        "residual_m": residual, "sigma_along_m": np.array([float(np.sqrt(np.linalg.eigvalsh(c.covariance[:2, :2]).max())) for c in candidates]),
+        "residual_m": residual, "sigma_along_m": np.array([float(np.sqrt(sym_eig(np.ascontiguousarray(c.covariance[:2, :2]))[0][-1])) for c in candidates]),
     })
 
 

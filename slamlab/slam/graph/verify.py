@@ -32,6 +32,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, wrap_angle
 from slamlab.slam.graph.loops import ACCEPTED, INCONSISTENT, PENDING, LoopCandidate
+from slamlab.slam.graph.small_linalg import mahalanobis_sq, rotate_covariances
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +67,7 @@ def correction_fits(c: LoopCandidate, poses: FloatArray, sigma_m: float, sigma_r
     may move the node along the corridor, where it says little, at no cost)."""
     d = correction(c, poses)
     cov = c.covariance + np.diag([sigma_m**2, sigma_m**2, sigma_rad**2])
-    return bool(d @ np.linalg.solve(cov, d) <= CHI2_3)
+    return bool(mahalanobis_sq(d, cov) <= CHI2_3)
 
 
 def tied_distances(path_m: FloatArray, ties: np.ndarray, nodes: np.ndarray) -> FloatArray:
@@ -118,7 +119,7 @@ def consistency_matrix(cands: list[LoopCandidate], poses: FloatArray, path_m: Fl
     rot = np.zeros((len(cands), 3, 3))
     rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1], rot[:, 2, 2] = c, -sn, sn, c, 1.0
     cov = np.array([q.covariance for q in cands])
-    world = rot @ cov @ rot.transpose(0, 2, 1)
+    world = rotate_covariances(rot, cov)
     lever = np.hypot(*(poses[nodes][:, None, :2] - poses[nodes][None, :, :2]).transpose(2, 0, 1))  # closure a's yaw error, carried to b
     between_anchors = tied_distances(path_m, np.zeros((0, 2)) if ties is None else ties, anchors)
     length = np.abs(path_m[nodes][:, None] - path_m[nodes][None, :]) + between_anchors
@@ -128,7 +129,7 @@ def consistency_matrix(cands: list[LoopCandidate], poses: FloatArray, path_m: Fl
     total[..., 0, 0] += sig**2 + world[:, None, 2, 2] * lever**2
     total[..., 1, 1] += sig**2 + world[:, None, 2, 2] * lever**2
     total[..., 2, 2] += sig_rad**2
-    q = np.einsum("abi,abi->ab", e, np.linalg.solve(total, e[..., None])[..., 0])
+    q = mahalanobis_sq(e, total)
     ok = q <= CHI2_3
     return ok & ok.T
 
