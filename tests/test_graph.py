@@ -338,6 +338,71 @@ def test_a_group_of_closures_closes_a_loop_the_robust_loss_alone_would_leave_ope
     assert not any(off) and error < 0.3
 
 
+
+class _TrialGraph:
+    """A stand-in for `PoseGraph` in `_try_group`'s decisions: which closures an optimisation
+    leaves far off depends on which closures it first took in as they say (`off_after`:
+    trusted set -> off closures; an untrusted re-optimisation keeps the last answer)."""
+
+    def __init__(self, n_loops: int, off_after) -> None:
+        self.active = [True] * n_loops
+        self.off_after = off_after
+        self.trusted: list[set[int]] = []
+        self.off: set[int] = set()
+        self._poses = np.zeros((2, 3))
+
+    @property
+    def poses(self) -> np.ndarray:
+        return self._poses
+
+    def optimise_batch(self, trusted=()) -> None:
+        self.trusted.append(set(trusted))
+        if trusted:
+            self.off = set(self.off_after(set(trusted)))
+            self._poses = np.full((2, 3), float(len(self.trusted)))  # each trial's own estimate
+
+    def loops_off(self, loops, m, rad) -> np.ndarray:
+        return np.array([int(j) in self.off and self.active[int(j)] for j in loops], dtype=bool)
+
+    def restore(self, poses) -> None:
+        self._poses = np.array(poses)
+        self.off = set(self.off_after(set(self.trusted[int(poses[0, 0]) - 1]))) if poses[0, 0] else set()
+
+    def drop_loop(self, j: int) -> None:
+        self.active[j] = False
+
+
+@pytest.mark.parametrize("together_holds", [True, False])
+def test_a_group_that_leaves_earlier_closures_off_is_tried_together_with_them(together_holds):
+    """Closures 0-5 are in the graph (0-1 a corridor's earlier loop closure); group 6-7 comes
+    in. Taken in alone it leaves 0 and 1 far off. Then the group and 0-1 are tried together,
+    all taken in as they say: if that leaves none of them off it stands and nothing is pruned;
+    otherwise the estimate of the group alone comes back and 0-1 are pruned, as before."""
+    group_ids = {6, 7}
+
+    def off_after(trusted: set[int]) -> set[int]:
+        if trusted == group_ids:
+            return {0, 1}
+        return set() if together_holds else {1}
+
+    g = _TrialGraph(8, off_after)
+    truth = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])
+    by_loop = {j: _closure(9, 0, truth) for j in range(8)}
+    group = [by_loop[6], by_loop[7]]
+    for j, c in by_loop.items():
+        c.loop_id = j
+        c.status = ACCEPTED
+    _try_group(g, by_loop, group, SimpleNamespace(prune_m=0.5, prune_rad=0.15), 9)
+    assert g.trusted[0] == group_ids and g.trusted[1] == {0, 1, 6, 7}  # alone, then together
+    if together_holds:
+        assert all(g.active) and g.poses[0, 0] == 2.0  # the joint estimate stands
+        assert not any(c.status in (PRUNED, REFUTED) for c in by_loop.values())
+    else:
+        assert g.poses[0, 0] != 2.0  # the joint trial was taken back
+        assert [j for j in range(8) if not g.active[j]] == [0, 1]
+        assert by_loop[0].status == PRUNED and by_loop[1].status == PRUNED and by_loop[6].status == ACCEPTED
+
+
 # ---- end to end -------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def loop_log(tmp_path_factory):
