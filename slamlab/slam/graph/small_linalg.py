@@ -12,7 +12,7 @@ the same bits under every core type.
 The graph's covariances and tests use these functions instead: plain loops compiled by
 numba without fast-math (no reassociation, no fused multiply-add), so the same inputs give
 the same bits on any x86-64 CPU. `tests/test_small_linalg.py` checks them against NumPy and
-runs the graph under several OpenBLAS core types.
+runs the graph with the CPU's own OpenBLAS kernels and with the generic ones.
 """
 
 from __future__ import annotations
