@@ -354,7 +354,7 @@ def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[
     Taken in first, a large correction can leave earlier closures far off that agree with it:
     the first run bends the path its own way, and the robust loss then weighs the earlier
     closures, now metres off, at almost nothing (the hospital log: a return to the start
-    7 m off, taken in, left the top-left corridor's closure of 90 s earlier 7 m off, and the
+    7 m off, taken in, left the top-left corridor's closure of 210 s earlier 7 m off, and the
     corridor stayed doubled). So when it leaves any far off, the group and those closures are
     tried together, all taken in as they say, from the estimate before the group: if that
     leaves none of them far off, it stands. Returns seconds."""
