@@ -350,6 +350,7 @@ class _TrialGraph:
         self.trusted: list[set[int]] = []
         self.off: set[int] = set()
         self._poses = np.zeros((2, 3))
+        self.optimisations: list = []
 
     @property
     def poses(self) -> np.ndarray:
@@ -364,7 +365,10 @@ class _TrialGraph:
     def loops_off(self, loops, m, rad) -> np.ndarray:
         return np.array([int(j) in self.off and self.active[int(j)] for j in loops], dtype=bool)
 
-    def restore(self, poses) -> None:
+    taken_back = 0
+
+    def restore(self, poses, taken_back: int = 0) -> None:
+        self.taken_back += taken_back
         self._poses = np.array(poses)
         self.off = set(self.off_after(set(self.trusted[int(poses[0, 0]) - 1]))) if poses[0, 0] else set()
 
@@ -401,6 +405,24 @@ def test_a_group_that_leaves_earlier_closures_off_is_tried_together_with_them(to
         assert g.poses[0, 0] != 2.0  # the joint trial was taken back
         assert [j for j in range(8) if not g.active[j]] == [0, 1]
         assert by_loop[0].status == PRUNED and by_loop[1].status == PRUNED and by_loop[6].status == ACCEPTED
+    assert g.taken_back == (0 if together_holds else 1)  # the joint trial, when taken back, is marked as such
+
+
+def test_an_optimisation_taken_back_is_no_correction():
+    """`restore(..., taken_back=n)` marks the last n optimisations as trials taken back; the
+    run's largest correction counts only the others."""
+    truth = _square_loop()
+    g = PoseGraph(truth[0], GraphNoise(0.01, 0.02, 0.005, 0.02, 0.03, 0.01, "cauchy", 0.5))
+    for k in range(1, len(truth)):  # local edges slipping 3 cm sideways a step on two sides: the end 1.7 m off
+        g.add_node(se2_compose(se2_between(truth[k - 1], truth[k]), np.array([0.0, 0.03 if k <= 80 else 0.0, 0.0])))
+    loops = {g.add_loop(a, n, _closure(n, a, truth).relative) for a, n in ((2, 156), (4, 158), (6, 160), (8, 162))}
+    kept = g.poses.copy()
+    g.optimise_batch(trusted=loops)
+    assert g.optimisations[-1].moved_max_m > 1.0
+    g.restore(kept, taken_back=1)
+    assert g.optimisations[-1].taken_back and np.array_equal(g.poses, kept)
+    g.optimise_batch()
+    assert not g.optimisations[-1].taken_back
 
 
 # ---- end to end -------------------------------------------------------------------------------

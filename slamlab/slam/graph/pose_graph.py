@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Collection
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
@@ -57,12 +57,14 @@ class GraphNoise:
 @dataclass(frozen=True, slots=True)
 class Optimisation:
     """One whole-graph optimisation: wall time (s), LM iterations (of its last run), how many
-    closures it first took in as they say (`trusted`), and the largest move of any node (m)."""
+    closures it first took in as they say (`trusted`), the largest move of any node (m), and
+    whether it was a trial the caller took back (`restore`): its move never reached the estimate."""
 
     seconds: float
     iterations: int
     trusted: int
     moved_max_m: float
+    taken_back: bool = False
 
 
 def _pose(p: FloatArray) -> gtsam.Pose2:
@@ -202,11 +204,13 @@ class PoseGraph:
         self.optimisations.append(o)
         return o
 
-    def restore(self, poses: FloatArray) -> None:
+    def restore(self, poses: FloatArray, taken_back: int = 0) -> None:
         """Set every node's estimate to `poses` (N, 3) and restart ISAM2 from it (after a
-        trial the caller took back)."""
+        trial the caller took back); the last `taken_back` optimisations are marked as such."""
         self._x[: self.n] = poses
         self._restart()
+        for j in range(max(len(self.optimisations) - taken_back, 0), len(self.optimisations)):
+            self.optimisations[j] = replace(self.optimisations[j], taken_back=True)
 
     def loops_off(self, loops: np.ndarray, m: float, rad: float) -> np.ndarray:
         """(L,) bool: which of `loops` (ids) the current estimate leaves more than `m` metres or

@@ -240,7 +240,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
                 "optimise_s": float(sum(o.seconds for o in graph.optimisations)),
                 "update_s": float(graph.update_seconds),
                 "redraws": int(tracker.redraws),
-                "largest_correction_m": float(max([o.moved_max_m for o in graph.optimisations], default=0.0)),
+                "largest_correction_m": float(max([o.moved_max_m for o in graph.optimisations if not o.taken_back], default=0.0)),
                 "final_optimise_s": final_s,
                 "search_s": float(search.seconds),
                 "screened": int(search.screened),
@@ -362,6 +362,7 @@ def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[
     ids = {c.loop_id for c in group}
     before = np.array([j for j in np.flatnonzero(graph.active) if j not in ids], dtype=np.int64)
     kept = graph.poses.copy()
+    trials = len(graph.optimisations)
     graph.optimise_batch(trusted=ids)
     off = before[graph.loops_off(before, s.prune_m, s.prune_rad)]
     if len(off):
@@ -370,7 +371,7 @@ def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[
         together = np.concatenate([np.array(sorted(ids), dtype=np.int64), off])
         graph.optimise_batch(trusted=set(together.tolist()))
         if graph.loops_off(together, s.prune_m, s.prune_rad).any():
-            graph.restore(alone)
+            graph.restore(alone, taken_back=1)
         else:
             log.debug("node %d: a group of %d closures in with the %d earlier closures it left off alone", k, len(group), len(off))
             off = off[:0]
@@ -379,7 +380,7 @@ def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[
         for c in group:
             graph.drop_loop(c.loop_id)
             c.status = REFUTED
-        graph.restore(kept)
+        graph.restore(kept, taken_back=len(graph.optimisations) - trials)
         log.debug("node %d: a group of %d closures refuted: %d of %d earlier closures would break", k, len(group), broken, len(before))
     else:
         _prune_and_reoptimise(graph, by_loop, s.prune_m, s.prune_rad)
