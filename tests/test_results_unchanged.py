@@ -110,7 +110,7 @@ def metrics_difference(before: object, now: object, key: str = "metrics.json") -
             if d is not None:
                 return d
         return None
-    if isinstance(before, float) and isinstance(now, float) and not isinstance(now, bool):
+    if isinstance(before, float) and isinstance(now, float):
         return None if math.isclose(before, now, rel_tol=METRICS_RTOL, abs_tol=1e-12) else f"{key}: {before!r} before, {now!r} now"
     return None if before == now and type(before) is type(now) else f"{key}: {before!r} before, {now!r} now"
 

@@ -33,7 +33,7 @@ import numpy as np
 from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, wrap_angle
 from slamlab.slam.field_cells import FieldCells
 from slamlab.slam.graph.branch_bound import CorrelativeSearch, SearchWindow, yaw_step_for
-from slamlab.slam.graph.small_linalg import from_eig, matmul, sym_eig
+from slamlab.slam.graph.small_linalg import congruence, from_eig, sym_eig
 from slamlab.slam.graph.submaps import FIELD_LUT, FinishedSubmap, Submaps
 from slamlab.slam.matcher import field_search, score_field, voxel_filter
 from slamlab.slam.raycast import line_start, line_step
@@ -400,7 +400,7 @@ def match_covariance(field: np.ndarray | FieldCells, origin: FloatArray, res_m: 
                          p, res_m, res_m / max(float(np.max(np.hypot(p[:, 0], p[:, 1]))), 1.0))
     c, s = np.cos(pose[2]), np.sin(pose[2])
     rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # node frame -> submap frame
-    info = matmul(matmul(np.ascontiguousarray(rot.T), np.ascontiguousarray(-hess, dtype=np.float64)), rot)
+    info = congruence(np.ascontiguousarray(rot.T), -hess)
     w, v = sym_eig((info + info.T) / 2)
     w = np.maximum(w, 1.0 / MAX_SIGMA_M**2)  # a flat or concave direction: pinned by nothing
     cov = from_eig(1.0 / w, v)

@@ -163,10 +163,16 @@ def mahalanobis_sq(d: FloatArray, cov: FloatArray) -> FloatArray:
 
 
 @numba.njit(cache=True)
+def congruence(r: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """r a r^T for small square matrices (a covariance or an information matrix in other axes)."""
+    return matmul(matmul(r, a), r.T.copy())
+
+
+@numba.njit(cache=True)
 def _rotate_rows(rot: np.ndarray, cov: np.ndarray) -> np.ndarray:
     out = np.empty_like(cov)
     for i in range(cov.shape[0]):
-        out[i] = matmul(matmul(rot[i], cov[i]), rot[i].T.copy())
+        out[i] = congruence(rot[i], cov[i])
     return out
 
 
