@@ -48,35 +48,34 @@ def map_image_bands(log_odds: np.ndarray) -> Iterator[np.ndarray]:
         yield np.flipud(band)
 
 
-def map_png_rgba(log_odds: np.ndarray) -> np.ndarray:
-    """map.png's (H, W, 4) uint8 pixels, top row = highest y: grey levels of 1 - P(occupied)
-    (`grey_rgba`), so uncertain cells are visible; converted band by band."""
+def map_png_bands(log_odds: np.ndarray) -> Iterator[np.ndarray]:
+    """map.png's (rows, W, 4) uint8 pixels a band of `BAND_ROWS` rows at a time, top row =
+    highest y first: grey levels of 1 - P(occupied) (`grey_rgba`), so uncertain cells are
+    visible. The whole RGBA image of a building's map is ~200 MB; a band is ~2 MB."""
     from slamlab.io.png import grey_rgba
 
     h = log_odds.shape[0]
-    rgba = np.empty(log_odds.shape + (4,), dtype=np.uint8)
-    for r in range(0, h, BAND_ROWS):
-        band = log_odds[r:r + BAND_ROWS]
-        # rows r .. r + len(band) land flipped at the bottom-up position
-        rgba[h - r - len(band):h - r] = grey_rgba(np.flipud(1.0 - occupancy_probability(band)))
-    return rgba
+    for hi in range(h, 0, -BAND_ROWS):
+        lo = max(hi - BAND_ROWS, 0)
+        yield grey_rgba(np.flipud(1.0 - occupancy_probability(log_odds[lo:hi])))
 
 
 def write_map(run_dir: Path, grid: GridImage) -> None:
     """map.png (for people), map.pgm + map.yaml (ROS map_server), map_logodds.npz (raw)."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from slamlab.io.png import write_png
+    from slamlab.io.png import write_png_bands
 
     run_dir = Path(run_dir)
     # map.png is the long pole on a building's map (one zlib stream of seconds, its bytes fixed:
-    # see below), so it starts at once; the npz's deflate and the PGM run beside it (zlib,
-    # Pillow and numpy's element-wise loops let go of the GIL)
+    # see below), so it starts at once; the npz's deflate and the PGM run beside it (zlib, the
+    # PNG row filter and numpy's element-wise loops let go of the GIL)
     with ThreadPoolExecutor(max_workers=1) as pool:
         others = pool.submit(_write_map_raw_and_ros, run_dir, grid)
-        # map.png: Pillow alone; the bytes plt.imsave(cmap="gray", vmin=0, vmax=1) wrote before
+        # map.png: the bytes plt.imsave(cmap="gray", vmin=0, vmax=1) wrote before, a band of rows at a time
+        h, w = grid.data.shape
         with atomic_path(run_dir / RunFile.MAP_PNG) as tmp:
-            write_png(tmp, map_png_rgba(grid.data))
+            write_png_bands(tmp, w, h, map_png_bands(grid.data))
         others.result()  # its error, if any, is raised here
 
 

@@ -70,3 +70,83 @@ def test_writing_a_map_does_not_import_matplotlib(tmp_path):
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def _pillow(rgba: np.ndarray) -> bytes:
+    """What Pillow's own writer gives the whole image, with the chunks write_png adds."""
+    from PIL import Image, PngImagePlugin
+
+    h, w = rgba.shape[:2]
+    image = Image.frombuffer("RGBA", (w, h), np.ascontiguousarray(rgba), "raw", "RGBA", 0, 1)
+    info = PngImagePlugin.PngInfo()
+    info.add_text("Software", png._imsave_software())
+    buf = io.BytesIO()
+    image.save(buf, format="png", pnginfo=info, dpi=(100, 100))
+    return buf.getvalue()
+
+
+def _banded(rgba: np.ndarray, rows: int) -> bytes:
+    buf = io.BytesIO()
+    png.write_png_bands(buf, rgba.shape[1], rgba.shape[0], (rgba[r:r + rows] for r in range(0, len(rgba), rows)))
+    return buf.getvalue()
+
+
+def _streaming_cases() -> list[np.ndarray]:
+    rng = np.random.default_rng(5)
+    sparse = (rng.random((300, 400)) < 0.02).astype(np.uint8)[..., None].repeat(4, axis=2) * 200
+    walls = png.grey_rgba(1.0 - 1.0 / (1.0 + np.exp(-np.repeat(rng.normal(0, 3, (60, 90)), 4, axis=0))))
+    return [
+        rng.integers(0, 256, (200, 300, 4), dtype=np.uint8),  # noise: the deflate stream spans several IDAT chunks
+        rng.integers(0, 256, (3, 20000, 4), dtype=np.uint8),  # wider than 16384 px: Pillow's chunks are 4 x width
+        np.zeros((5, 7, 4), dtype=np.uint8),  # zero rows: no filter tried
+        sparse,  # long runs: every filter wins somewhere
+        walls,  # rows repeated four times: up filters to zeros
+    ]
+
+
+@pytest.mark.parametrize("case", range(len(_streaming_cases())))
+@pytest.mark.parametrize("rows", [1, 7, 64, 100000])
+def test_png_written_band_by_band_is_byte_identical_to_pillow_whole(case, rows):
+    rgba = _streaming_cases()[case]
+    assert _banded(rgba, rows) == _pillow(rgba)
+
+
+def test_png_filters_and_chunks_are_pillows():
+    """The noise case really uses several IDAT chunks and every filter Pillow tries (a check
+    that the cases above test what they say)."""
+    import struct
+    import zlib
+
+    def parse(b: bytes):
+        at, kinds, data = 8, [], b""
+        while at < len(b):
+            (n,) = struct.unpack(">I", b[at:at + 4])
+            kinds.append((b[at + 4:at + 8], n))
+            if b[at + 4:at + 8] == b"IDAT":
+                data += b[at + 8:at + 8 + n]
+            at += 12 + n
+        return kinds, zlib.decompress(data)
+
+    noise = _streaming_cases()[0]
+    kinds, raw = parse(_banded(noise, 64))
+    assert [n for k, n in kinds if k == b"IDAT"][:3] == [65536, 65536, 65536]
+    assert set(np.frombuffer(raw, dtype=np.uint8)[::300 * 4 + 1].tolist()) == {0, 1, 2, 4}
+
+
+def test_map_png_bands_give_the_whole_maps_png():
+    """write_map's map.png, band by band, is what imsave gave for the whole map."""
+    from slamlab.artifacts import BAND_ROWS, map_png_bands, occupancy_probability
+
+    log_odds = np.random.default_rng(2).normal(0.0, 3.0, (2 * BAND_ROWS + 13, 70)).astype(np.float32)
+    buf = io.BytesIO()
+    png.write_png_bands(buf, 70, len(log_odds), map_png_bands(log_odds))
+    values = np.flipud(1.0 - occupancy_probability(log_odds))
+    assert buf.getvalue() == _imsave(values, cmap="gray", vmin=0.0, vmax=1.0)
+
+
+def test_png_bands_of_the_wrong_size_are_refused():
+    rgba = np.zeros((4, 5, 4), dtype=np.uint8)
+    with pytest.raises(ValueError, match="rows"):
+        png.write_png_bands(io.BytesIO(), 5, 5, [rgba])
+    with pytest.raises(ValueError, match="shape"):
+        png.write_png_bands(io.BytesIO(), 6, 4, [rgba])

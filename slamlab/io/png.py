@@ -10,8 +10,12 @@ verifies byte for byte (`slamlab-verify`). tests/test_png.py checks it against i
 
 from __future__ import annotations
 
+import struct
+import zlib
+from collections.abc import Iterable
 from importlib import metadata
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -56,19 +60,78 @@ def as_rgba(image: np.ndarray) -> np.ndarray:
     return rgba
 
 
-def write_png(path: Path, rgba: np.ndarray) -> None:
+def write_png(path: Path | BinaryIO, rgba: np.ndarray) -> None:
     """Write a (H, W, 4) uint8 RGBA image as PNG to `path` (not atomic: callers write to a
     temporary name, see `artifacts.atomic_path`)."""
-    from PIL import Image, PngImagePlugin
-
     rgba = np.ascontiguousarray(rgba, dtype=np.uint8)
-    h, w = rgba.shape[:2]
-    image = Image.frombuffer("RGBA", (w, h), rgba, "raw", "RGBA", 0, 1)
-    info = PngImagePlugin.PngInfo()
-    software = _imsave_software()
-    if software is not None:
-        info.add_text("Software", software)
-    image.save(path, format="png", pnginfo=info, dpi=(_DPI, _DPI))
+    write_png_bands(path, rgba.shape[1], rgba.shape[0], [rgba])
+
+
+def write_png_bands(path: Path | BinaryIO, width: int, height: int, bands: Iterable[np.ndarray]) -> None:
+    """Write an RGBA PNG of `width` x `height` pixels from `bands`, (rows, width, 4) uint8
+    blocks of its rows top to bottom, holding one band at a time (a building's map.png is
+    ~200 MB of RGBA pixels as one array).
+
+    The bytes are those Pillow's PNG writer gives the whole image (what plt.imsave called):
+    its chunks (IHDR, tEXt Software, pHYs 100 dpi, IDAT, IEND), its row filters (per row the
+    first of none, up, sub, Paeth with the least sum of |byte| read as signed, libpng's
+    heuristic, as Pillow's ZipEncode.c picks them without `optimize`), its zlib settings (level
+    6, 32 kB window, memLevel 9, Z_FILTERED) and its IDAT chunks (the deflate stream cut into
+    max(64 kB, 4 x width) pieces). tests/test_png.py checks it against Pillow and imsave."""
+    own = not hasattr(path, "write")
+    f = open(path, "wb") if own else path  # type: ignore[arg-type]
+    try:
+        f.write(b"\x89PNG\r\n\x1a\n")
+        _chunk(f, b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 6, 0, 0, 0))  # 8-bit RGBA, no interlace
+        software = _imsave_software()
+        if software is not None:
+            _chunk(f, b"tEXt", b"Software\0" + software.encode("latin-1"))
+        per_m = int(_DPI / 0.0254 + 0.5)
+        _chunk(f, b"pHYs", struct.pack(">IIB", per_m, per_m, 1))
+        idat = max(_PILLOW_BLOCK, 4 * width)
+        deflate = zlib.compressobj(6, zlib.DEFLATED, 15, 9, zlib.Z_FILTERED)
+        pending = bytearray()
+        previous = np.zeros(4 * width, dtype=np.uint8)
+        rows = 0
+        for band in bands:
+            band = np.ascontiguousarray(band, dtype=np.uint8)
+            if band.ndim != 3 or band.shape[1:] != (width, 4):
+                raise ValueError(f"expected ({width}, 4) uint8 pixel rows, got a band of shape {band.shape}")
+            if not len(band):
+                continue
+            raw = band.reshape(len(band), 4 * width)
+            pending += deflate.compress(_filtered_rows(raw, previous))
+            previous = raw[-1].copy()
+            rows += len(band)
+            while len(pending) >= idat:
+                _chunk(f, b"IDAT", bytes(pending[:idat]))
+                del pending[:idat]
+        if rows != height:
+            raise ValueError(f"the bands held {rows} rows, the image has {height}")
+        pending += deflate.flush()
+        for at in range(0, len(pending), idat):
+            _chunk(f, b"IDAT", bytes(pending[at:at + idat]))
+        _chunk(f, b"IEND", b"")
+    finally:
+        if own:
+            f.close()
+
+
+_PILLOW_BLOCK = 65536  # Pillow's ImageFile.MAXBLOCK: its encoder's output buffer, one IDAT chunk each
+
+
+def _chunk(f: BinaryIO, kind: bytes, data: bytes) -> None:
+    f.write(struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(data, zlib.crc32(kind))))
+
+
+def _filtered_rows(raw: np.ndarray, previous: np.ndarray) -> bytes:
+    """PNG scanlines of pixel rows `raw` (n, 4W) uint8 below the row `previous` (4W,), each
+    row's filter chosen as Pillow's encoder does (`png_filter.filter_rows`)."""
+    from slamlab.io.png_filter import filter_rows  # numba: loaded when a PNG is written, not on import
+
+    out = np.empty((raw.shape[0], raw.shape[1] + 1), dtype=np.uint8)
+    filter_rows(raw, previous, out)
+    return out.tobytes()
 
 
 def _imsave_software() -> str | None:
