@@ -24,7 +24,7 @@ def test_the_observed_rows_and_columns_found_band_by_band_are_the_whole_masks():
     data[band - 3:2 * band + 5, 40:260] = rng.normal(0.0, 2.0, (band + 8, 220)).astype(np.float32)
     data[band - 3, 40] = np.float32(1e-6)  # not observed: |v| must exceed 1e-6
     data[3 * band + 10, 290] = -0.4  # one lone observed cell in the last, partial band
-    rows, cols = figures._known_rows_cols(data)
+    rows, cols = figures._known_rows_cols(LogOddsMap(data=data, resolution_m=0.05, origin_xy=(-2.0, 3.0)))
     known = np.abs(data) > 1e-6
     assert np.array_equal(rows, np.flatnonzero(known.any(axis=1)))
     assert np.array_equal(cols, np.flatnonzero(known.any(axis=0)))
@@ -36,3 +36,39 @@ def test_the_observed_rows_and_columns_found_band_by_band_are_the_whole_masks():
     assert view.extent[0] == -2.0 + c0 * 0.05 and view.extent[2] == 3.0 + r0 * 0.05
     k = int(np.ceil(max(r1 - r0, c1 - c0) / 100))
     assert view.image.shape == (-(-(r1 - r0) // k), -(-(c1 - c0) // k))
+
+
+def _written_map(tmp_path, data: np.ndarray, **kw):
+    from slamlab.io.atomic import write_npz_fast
+
+    path = tmp_path / "map_logodds.npz"
+    write_npz_fast(path, data=data, resolution_m=np.float64(0.05), origin_xy=np.array([-2.0, 3.0]), **kw)
+    return path
+
+
+def test_a_runs_map_read_band_by_band_gives_the_views_of_the_whole_array(tmp_path):
+    """The report reads a run's map from its file a band of rows at a time (a building's map is
+    ~200 MB whole): every view is the one the whole array gives, pixel for pixel."""
+    from slamlab.io.rundir import LogOddsRows
+    from slamlab.report.rundir import Trajectory, read_logodds
+
+    rng = np.random.default_rng(4)
+    band = figures.KNOWN_BAND_ROWS
+    data = np.zeros((2 * band + 71, 530), dtype=np.float32)
+    data[40:2 * band + 30, 25:500] = rng.normal(0.0, 3.0, (2 * band - 10, 475)).astype(np.float32)
+    m = read_logodds(_written_map(tmp_path, data))
+    assert isinstance(m.data, LogOddsRows) and m.shape == data.shape
+    whole = LogOddsMap(data=data, resolution_m=0.05, origin_xy=(-2.0, 3.0))
+    outside = Trajectory(t=np.arange(2.0), xy=np.array([[-2.0, 3.0], [30.0, 40.0]]), yaw=np.zeros(2))
+    for max_px, trs in ((1000, []), (100, []), (37, [outside]), (7, [])):
+        a, b = figures.prepare_map(whole, max_px, trs), figures.prepare_map(m, max_px, trs)
+        assert a.extent == b.extent
+        assert a.image.shape == b.image.shape and np.array_equal(a.image, b.image)
+
+
+def test_a_map_file_the_band_reader_cannot_read_is_read_whole(tmp_path):
+    from slamlab.report.rundir import read_logodds
+
+    data = np.asfortranarray(np.random.default_rng(1).normal(0.0, 1.0, (30, 40)).astype(np.float32))
+    m = read_logodds(_written_map(tmp_path, data))
+    assert isinstance(m.data, np.ndarray) and np.array_equal(m.data, data)

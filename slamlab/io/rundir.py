@@ -18,6 +18,7 @@ import os
 from dataclasses import dataclass, fields
 from enum import StrEnum
 from pathlib import Path
+from collections.abc import Iterator
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -138,15 +139,76 @@ class FirstScan:
 def read_logodds(path: Path) -> GridImage:
     """The one reader of `map_logodds.npz`: `data` (H, W) float32 log-odds, `resolution_m`
     (m), `origin_xy` (m) as a GridImage. A file without those arrays raises DataError naming it."""
+    res, origin = read_logodds_place(path)
+    with np.load(path) as z:
+        data = np.asarray(z["data"], dtype=np.float32)
+    return GridImage(data, res, origin)
+
+
+def read_logodds_place(path: Path) -> tuple[float, tuple[float, float]]:
+    """map_logodds.npz's (resolution_m, origin_xy), its `data` left unread; DataError naming
+    the file when it lacks one of the three arrays."""
     need = ("data", "resolution_m", "origin_xy")
     with np.load(path) as z:
         missing = [name for name in need if name not in z]
         if missing:
             raise DataError(path, f"missing array(s) {', '.join(missing)} (need {', '.join(need)})")
-        data = np.asarray(z["data"], dtype=np.float32)
         res = float(np.asarray(z["resolution_m"]).reshape(()))
         origin = np.asarray(z["origin_xy"], dtype=np.float64).reshape(2)
-    return GridImage(data, res, (float(origin[0]), float(origin[1])))
+    return res, (float(origin[0]), float(origin[1]))
+
+
+class LogOddsRows:
+    """The `data` of a map_logodds.npz read a band of rows at a time from the file, for
+    readers that reduce it (the report's map views): a building's map is ~200 MB of float32,
+    its reduced views ~1 MB. `shape` (H, W); `bands(r0, r1, rows)` the rows r0..r1 as float32
+    arrays of `rows` rows (the last may be shorter), decompressed as they are read."""
+
+    def __init__(self, path: Path, shape: tuple[int, int], dtype: np.dtype) -> None:
+        self.path = Path(path)
+        self.shape = shape
+        self.dtype = dtype
+
+    def bands(self, r0: int, r1: int, rows: int) -> Iterator[np.ndarray]:
+        import zipfile
+
+        w = self.shape[1]
+        row_bytes = w * self.dtype.itemsize
+        with zipfile.ZipFile(self.path) as z, z.open("data.npy") as f:
+            _npy_header(f)
+            for _ in range(r0):  # rows before r0, read and dropped a row at a time
+                f.read(row_bytes)
+            for r in range(r0, r1, rows):
+                n = min(rows, r1 - r)
+                buf = f.read(n * row_bytes)
+                if len(buf) != n * row_bytes:
+                    raise DataError(self.path, f"data: the file ends at row {r} of {self.shape[0]}")
+                yield np.frombuffer(buf, dtype=self.dtype).reshape(n, w).astype(np.float32, copy=False)
+
+
+def _npy_header(f: Any) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """(shape, fortran_order, dtype) of the .npy stream `f`, read past its header."""
+    version = np.lib.format.read_magic(f)
+    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    return read(f)
+
+
+def read_logodds_rows(path: Path) -> tuple[LogOddsRows | np.ndarray, float, tuple[float, float]]:
+    """map_logodds.npz as (data, resolution_m, origin_xy), `data` a `LogOddsRows` (read band
+    by band when used) when the file keeps it as a 2-D C-order float array; else the whole
+    array (`read_logodds`)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z, z.open("data.npy") as f:
+            shape, fortran, dtype = _npy_header(f)
+    except (KeyError, ValueError, OSError, zipfile.BadZipFile):
+        shape, fortran, dtype = (), True, np.dtype(object)  # not a plain npz member: read_logodds says what is wrong
+    if fortran or len(shape) != 2 or dtype.kind != "f":
+        whole = read_logodds(path)
+        return whole.data, whole.resolution_m, whole.origin_xy
+    res, origin = read_logodds_place(path)
+    return LogOddsRows(path, (int(shape[0]), int(shape[1])), dtype), res, origin
 
 
 def _read_record(path: Path, record: type) -> Any:

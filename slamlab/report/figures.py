@@ -128,12 +128,14 @@ def png_size(uri: str) -> tuple[int, int]:
 def prepare_map(m: LogOddsMap, max_px: int, trajectories: Sequence[Trajectory] = (), margin_m: float = 1.0) -> MapView:
     """Crop a log-odds grid to its observed cells (plus the trajectories and a margin) and
     reduce it by blocks so the longest side is <= max_px. Reduction keeps the most
-    occupied cell of each block so thin walls survive downsampling."""
-    data = m.data
-    h, w = data.shape
+    occupied cell of each block so thin walls survive downsampling. The grid is read a band
+    of rows at a time (`LogOddsMap.bands`): a run's map is not held whole."""
+    h, w = m.shape
     res = m.resolution_m
     ox, oy = m.origin_xy
-    rows, cols = _known_rows_cols(data)
+    if "rows_cols" not in m.known:  # one pass over the grid, for every view of it
+        m.known["rows_cols"] = _known_rows_cols(m)
+    rows, cols = m.known["rows_cols"]
     if rows.size and cols.size:
         r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
     else:
@@ -148,10 +150,11 @@ def prepare_map(m: LogOddsMap, max_px: int, trajectories: Sequence[Trajectory] =
     pad = int(math.ceil(margin_m / res))
     r0, c0 = max(0, r0 - pad), max(0, c0 - pad)
     r1, c1 = min(h, r1 + pad), min(w, c1 + pad)
-    crop = data[r0:r1, c0:c1]
-    k = max(1, int(math.ceil(max(crop.shape) / max_px)))
-    # A block that saw only free cells has max < 0; unknown-only blocks stay 0.
-    crop = block_max(crop, k)
+    k = max(1, int(math.ceil(max(r1 - r0, c1 - c0) / max_px)))
+    # A block that saw only free cells has max < 0; unknown-only blocks stay 0. Bands of whole
+    # blocks: reduced one by one and stacked, they are the whole crop reduced
+    step = max(k, KNOWN_BAND_ROWS // k * k)
+    crop = np.vstack([block_max(band[:, c0:c1], k) for band in m.bands(r0, r1, step)])
     p_occ = 1.0 / (1.0 + np.exp(-np.clip(crop.astype(np.float64), -30, 30)))
     extent = (ox + c0 * res, ox + (c0 + crop.shape[1] * k) * res, oy + r0 * res, oy + (r0 + crop.shape[0] * k) * res)
     return MapView(image=1.0 - p_occ, extent=extent)
@@ -160,13 +163,14 @@ def prepare_map(m: LogOddsMap, max_px: int, trajectories: Sequence[Trajectory] =
 KNOWN_BAND_ROWS = 256  # map rows checked at a time (a whole building's map is 160 MB of float32)
 
 
-def _known_rows_cols(data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _known_rows_cols(m: LogOddsMap) -> tuple[np.ndarray, np.ndarray]:
     """The rows and the columns of a log-odds grid holding an observed cell (|log-odds| >
     1e-6), checked band by band (the whole grid's |.| and mask would be 200 MB on a building)."""
-    rows = np.zeros(data.shape[0], dtype=bool)
-    cols = np.zeros(data.shape[1], dtype=bool)
-    for r in range(0, data.shape[0], KNOWN_BAND_ROWS):
-        known = np.abs(data[r:r + KNOWN_BAND_ROWS]) > 1e-6
+    h, w = m.shape
+    rows = np.zeros(h, dtype=bool)
+    cols = np.zeros(w, dtype=bool)
+    for r, band in zip(range(0, h, KNOWN_BAND_ROWS), m.bands(0, h, KNOWN_BAND_ROWS)):
+        known = np.abs(band) > 1e-6
         rows[r:r + KNOWN_BAND_ROWS] = known.any(axis=1)
         cols |= known.any(axis=0)
     return np.flatnonzero(rows), np.flatnonzero(cols)

@@ -220,7 +220,7 @@ def render_run_report(run: RunDir) -> str:
         missing = [figures.KIND_STYLE[k]["label"] for k in ("groundtruth",) if trajs[k] is None]
         map_note = (
             "Occupancy map (white free, black occupied, grey unknown)"
-            + (f" of {m.data.shape[1]}×{m.data.shape[0]} cells of {m.resolution_m:g} m, shown cropped to the mapped area"
+            + (f" of {m.shape[1]}×{m.shape[0]} cells of {m.resolution_m:g} m, shown cropped to the mapped area"
                " and the estimated path" if m is not None else "")
             + ". Paths: " + ", ".join(shown) + "; ○ start, ■ end."
             + (" The odometry leaves this window (it drifts): it is clipped at the edge." if odo_clipped else "")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,7 +21,7 @@ import numpy as np
 from slamlab.errors import SlamlabError
 from slamlab.io.atomic import json_ready
 from slamlab.io.rundir import FirstScan, ParticleRecord, RunDirectory, RunFile, TrajectoryKind  # noqa: F401 (types the report modules use)
-from slamlab.io.rundir import read_logodds as read_logodds_file
+from slamlab.io.rundir import LogOddsRows, read_logodds_rows
 from slamlab.io.table import Table
 from slamlab.io.tum import read_tum as read_tum_file
 
@@ -44,16 +45,32 @@ class Trajectory:
 @dataclass(frozen=True, slots=True)
 class LogOddsMap:
     """The raw occupancy grid: `data` (H, W) float32 log-odds, row 0 = lowest y;
-    cell (r, c) covers x in [origin_x + c*res, +res), y in [origin_y + r*res, +res)."""
+    cell (r, c) covers x in [origin_x + c*res, +res), y in [origin_y + r*res, +res).
+    A run's map is `data` = a `LogOddsRows`, read from its file a band of rows at a time
+    (`bands`) whenever a figure reduces it: a building's map is ~200 MB as an array, and a
+    report, or a sweep's report of many runs, held each one whole."""
 
-    data: np.ndarray
+    data: np.ndarray | LogOddsRows
     resolution_m: float
     origin_xy: tuple[float, float]
+    known: dict = field(default_factory=dict, compare=False, repr=False)  # figures' cache of what they found in `data`
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.data.shape)  # type: ignore[return-value]
+
+    def bands(self, r0: int, r1: int, rows: int) -> Iterator[np.ndarray]:
+        """Rows r0..r1 of `data`, `rows` at a time (the last band may be shorter)."""
+        if isinstance(self.data, LogOddsRows):
+            yield from self.data.bands(r0, r1, rows)
+            return
+        for r in range(r0, r1, rows):
+            yield self.data[r:min(r + rows, r1)]
 
     @property
     def extent(self) -> tuple[float, float, float, float]:
         """(x_min, x_max, y_min, y_max) in metres, for matplotlib's imshow."""
-        h, w = self.data.shape
+        h, w = self.shape
         ox, oy = self.origin_xy
         return (ox, ox + w * self.resolution_m, oy, oy + h * self.resolution_m)
 
@@ -171,7 +188,7 @@ class RunDir:
 
     def load_map(self) -> LogOddsMap | None:
         """The log-odds grid, or None when the run wrote no (readable) map."""
-        return self._cached("map", lambda: _log_odds_map(self.files.read_map()))
+        return self._cached("map", lambda: read_logodds(self.path / RunFile.MAP_LOGODDS))
 
     def load_trajectory(self, which: str = "slam") -> Trajectory | None:
         """One of "slam", "causal", "odometry", "groundtruth"; None when absent."""
@@ -199,12 +216,6 @@ def _trajectory(read: tuple[np.ndarray, np.ndarray] | None) -> Trajectory | None
     return Trajectory(t=t, xy=poses[:, :2].copy(), yaw=poses[:, 2])
 
 
-def _log_odds_map(grid: Any) -> LogOddsMap | None:
-    if grid is None:
-        return None
-    return LogOddsMap(data=grid.data, resolution_m=grid.resolution_m, origin_xy=grid.origin_xy)
-
-
 def read_tum(path: Path) -> Trajectory | None:
     """A TUM trajectory file (slamlab.io.tum.read_tum); None if the file is missing or holds
     no poses."""
@@ -212,8 +223,12 @@ def read_tum(path: Path) -> Trajectory | None:
 
 
 def read_logodds(path: Path) -> LogOddsMap | None:
-    """A map_logodds.npz (slamlab.io.rundir.read_logodds); None if missing."""
-    return _log_odds_map(read_logodds_file(path) if path.is_file() else None)
+    """A map_logodds.npz (slamlab.io.rundir.read_logodds_rows: its data read band by band
+    when a figure reduces it); None if missing."""
+    if not path.is_file():
+        return None
+    data, res, origin = read_logodds_rows(path)
+    return LogOddsMap(data=data, resolution_m=res, origin_xy=origin)
 
 
 def _tail(path: Path, max_lines: int = 40, max_bytes: int = 64_000) -> str | None:
