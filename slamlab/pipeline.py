@@ -359,7 +359,7 @@ def run_pipeline(
         release_freed_memory()  # the particles' maps and the filter's work arrays
 
         # SLAM results first: whatever happens to texture afterwards, these are kept. The map's
-        # PNG (seconds on a building: one zlib stream, Pillow lets go of the GIL) is written on
+        # PNG (seconds on a building: one zlib stream; zlib and its row filter let go of the GIL) is written on
         # a second thread while the metrics and the other files are made; the thread is waited
         # for before anything else happens, also when something here fails or Ctrl-C comes
         # (`_finish_background`), so nothing is written after the cleanup below.

@@ -1,11 +1,13 @@
-"""PNG files of plain images (a grey map, an RGB(A) texture) with Pillow alone.
+"""PNG files of plain images (a grey map, an RGB(A) texture), without matplotlib.
 
 `matplotlib.pyplot.imsave` wrote these before; importing pyplot costs about 0.4 s and
 40 MB, more than a one-scan run spends on anything else. These functions write the same
 bytes as `plt.imsave(path, values, cmap="gray", vmin=0, vmax=1)` and `plt.imsave(path,
 rgba)`: the same RGBA pixels, the same tEXt chunk (`Software`, naming matplotlib, as
 imsave does) and the same 100 dpi pHYs chunk, so a run made before this module still
-verifies byte for byte (`slamlab-verify`). tests/test_png.py checks it against imsave.
+verifies byte for byte (`slamlab-verify`). They encode as Pillow's writer does (imsave's
+encoder), but a band of rows at a time (`write_png_bands`): a building's map is ~200 MB of
+RGBA pixels. tests/test_png.py checks the bytes against imsave and Pillow.
 """
 
 from __future__ import annotations

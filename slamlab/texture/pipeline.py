@@ -524,7 +524,7 @@ def _place_frame(
 
 # ---- outputs ------------------------------------------------------------------------------
 def _write_png(path: Path, image: np.ndarray) -> None:
-    """A uint8 RGB(A) image as PNG, atomically (Pillow; the bytes plt.imsave wrote before)."""
+    """A uint8 RGB(A) image as PNG, atomically (`io.png`: the bytes plt.imsave wrote before)."""
     from slamlab.io.png import as_rgba, write_png
 
     with atomic_path(path) as tmp:
