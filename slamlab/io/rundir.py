@@ -15,10 +15,11 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
+from collections.abc import Iterator
 from dataclasses import dataclass, fields
 from enum import StrEnum
 from pathlib import Path
-from collections.abc import Iterator
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -170,14 +171,12 @@ class LogOddsRows:
         self.dtype = dtype
 
     def bands(self, r0: int, r1: int, rows: int) -> Iterator[np.ndarray]:
-        import zipfile
-
         w = self.shape[1]
         row_bytes = w * self.dtype.itemsize
         with zipfile.ZipFile(self.path) as z, z.open("data.npy") as f:
             _npy_header(f)
-            for _ in range(r0):  # rows before r0, read and dropped a row at a time
-                f.read(row_bytes)
+            for r in range(0, r0, rows):  # the rows before r0, read and dropped
+                f.read(min(rows, r0 - r) * row_bytes)
             for r in range(r0, r1, rows):
                 n = min(rows, r1 - r)
                 buf = f.read(n * row_bytes)
@@ -197,8 +196,6 @@ def read_logodds_rows(path: Path) -> tuple[LogOddsRows | np.ndarray, float, tupl
     """map_logodds.npz as (data, resolution_m, origin_xy), `data` a `LogOddsRows` (read band
     by band when used) when the file keeps it as a 2-D C-order float array; else the whole
     array (`read_logodds`)."""
-    import zipfile
-
     try:
         with zipfile.ZipFile(path) as z, z.open("data.npy") as f:
             shape, fortran, dtype = _npy_header(f)
