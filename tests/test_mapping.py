@@ -71,3 +71,31 @@ def _common(a, b):
     r1 = min(a.data.shape[0], b.data.shape[0] + off[1])
     c1 = min(a.data.shape[1], b.data.shape[1] + off[0])
     return a.data[r0:r1, c0:c1], b.data[r0 - off[1] : r1 - off[1], c0 - off[0] : c1 - off[0]]
+
+
+def test_the_map_sized_once_is_the_one_grown_scan_by_scan():
+    """`map_from_trajectory` sizes the grid once, from the growth the scans would cause one by
+    one: the same log-odds and origin, bit for bit, as inserting them one by one into a grid
+    that grows (here a path wandering up to 30 m away in every direction, in random order: a
+    dozen growths, left, right, up and down)."""
+    from dataclasses import replace
+
+    from slamlab.slam.grid import OccupancyGrid
+    from slamlab.slam.scan import points_to_world, range_limits, scans_to_points
+
+    seq = _room_sequence(60)
+    settings = replace(build_components(_cfg()).map, growth_margin_m=0.0)
+    t = np.linspace(0.0, 4.0 * np.pi, 60)
+    poses = np.stack([30.0 * np.cos(t) * np.sin(t / 3), -25.0 * np.sin(1.5 * t), t], axis=1)
+    order = np.random.default_rng(3).permutation(60)
+    grid = map_from_trajectory(seq, poses, settings, order)
+
+    min_r, max_r = range_limits(settings, seq)
+    ref = OccupancyGrid(settings, (float(poses[order[0], 0]), float(poses[order[0], 1])))
+    points = scans_to_points([seq.scans[int(i)] for i in order], seq.body_height_m, min_r, max_r, settings.ground_threshold_m)
+    for i, pts in zip(order, points):
+        if len(pts.xy):
+            ref.insert(points_to_world(pts.origin.reshape(1, 2), poses[i])[0], points_to_world(pts.xy, poses[i]))
+    assert ref.grow_count >= 10
+    assert grid.origin_xy == (float(ref.origin[0]), float(ref.origin[1]))
+    assert grid.data.shape == ref.log_odds.shape and np.array_equal(grid.data.view(np.uint32), ref.log_odds.view(np.uint32))

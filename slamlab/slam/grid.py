@@ -80,6 +80,29 @@ def _sole_reference_count() -> int:
 SOLE_REFERENCE = _sole_reference_count()
 
 
+def growth_pads(origin: FloatArray, shape: tuple[int, int], res: float, margin_m: float,
+                box: tuple[float, float, float, float]) -> tuple[int, int, int, int]:
+    """(bottom, top, left, right) cells a grid of `shape` at `origin` (m) grows by so the box
+    (xmin, ymin, xmax, ymax) m fits inside, with `margin_m` of room past it (0s: it fits)."""
+    xmin, ymin, xmax, ymax = box
+    H, W = shape
+    m = int(np.ceil(margin_m / res)) + 1
+    lo_c = int(np.floor((xmin - origin[0]) / res))
+    lo_r = int(np.floor((ymin - origin[1]) / res))
+    hi_c = int(np.floor((xmax - origin[0]) / res))
+    hi_r = int(np.floor((ymax - origin[1]) / res))
+    pad_l = m - lo_c if lo_c < 1 else 0
+    pad_b = m - lo_r if lo_r < 1 else 0
+    pad_r = hi_c - (W - 2) + m if hi_c > W - 2 else 0
+    pad_t = hi_r - (H - 2) + m if hi_r > H - 2 else 0
+    return pad_b, pad_t, pad_l, pad_r
+
+
+def grown_origin(origin: FloatArray, pad_l: int, pad_b: int, res: float) -> FloatArray:
+    """A grid's origin (m) after it grew by `pad_l` cells on the left and `pad_b` below."""
+    return origin - np.array([pad_l, pad_b]) * res
+
+
 class OccupancyGrid:
     """Log-odds grid centred at `center_xy` (m) at start, growing on demand.
 
@@ -159,18 +182,11 @@ class OccupancyGrid:
 
     def ensure(self, xmin: float, ymin: float, xmax: float, ymax: float) -> None:
         """Grow the grid (by the overshoot + growth margin) so the box (m) fits inside."""
-        H, W = self.shape
-        m = int(np.ceil(self.s.growth_margin_m / self.res)) + 1
-        lo_c = int(np.floor((xmin - self.origin[0]) / self.res))
-        lo_r = int(np.floor((ymin - self.origin[1]) / self.res))
-        hi_c = int(np.floor((xmax - self.origin[0]) / self.res))
-        hi_r = int(np.floor((ymax - self.origin[1]) / self.res))
-        pad_l = m - lo_c if lo_c < 1 else 0
-        pad_b = m - lo_r if lo_r < 1 else 0
-        pad_r = hi_c - (W - 2) + m if hi_c > W - 2 else 0
-        pad_t = hi_r - (H - 2) + m if hi_r > H - 2 else 0
-        if pad_l == pad_b == pad_r == pad_t == 0:
+        pads = growth_pads(self.origin, self.shape, self.res, self.s.growth_margin_m, (xmin, ymin, xmax, ymax))
+        if pads == (0, 0, 0, 0):
             return
+        pad_b, pad_t, pad_l, pad_r = pads
+        H, W = self.shape
         self.log_odds = self._grown_array("log_odds", pad_b, pad_t, pad_l, pad_r)
         if self.walls_at_hits:
             for name in ("hit_dx", "hit_dy", "hit_n"):
@@ -178,8 +194,23 @@ class OccupancyGrid:
         if self.field is not None:
             self.field = self._grown_array("field", pad_b, pad_t, pad_l, pad_r)
             self._refresh_field_margins(pad_b, pad_l, H, W)
-        self.origin = self.origin - np.array([pad_l, pad_b]) * self.res
+        self.origin = grown_origin(self.origin, pad_l, pad_b, self.res)
         self.grow_count += 1
+
+    def insert_cells(self, sensor_rc: tuple[int, int], rows: np.ndarray, cols: np.ndarray) -> None:
+        """Ray-cast one scan given in cells (sensor (row, col), hits' rows and cols, all inside
+        the grid) into a grid without a field or hit offsets: what `insert` does after `cells`."""
+        assert self.field is None and not self.walls_at_hits, "insert_cells keeps neither a field nor hit offsets"
+        s = self.s
+        raycast_update(self.log_odds, int(sensor_rc[0]), int(sensor_rc[1]), rows, cols, np.float32(s.log_odds_occupied),
+                       np.float32(s.log_odds_free), np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold),
+                       np.array(NO_FLIP, dtype=np.int64))
+
+    def resize_empty(self, origin: FloatArray, shape: tuple[int, int]) -> None:
+        """Make a grid that holds nothing yet (a fresh one, no field) `shape` cells at `origin` (m)."""
+        assert self.field is None and not self.walls_at_hits and not self.log_odds.any(), "resize_empty is for an empty grid"
+        self.log_odds = np.zeros(shape, dtype=np.float32)
+        self.origin = np.asarray(origin, dtype=np.float64).copy()
 
     def _grown_array(self, name: str, pad_b: int, pad_t: int, pad_l: int, pad_r: int) -> np.ndarray:
         """The grid's array `name` grown (copied into a larger zeroed one, `_copy_into`); its old
