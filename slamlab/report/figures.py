@@ -154,7 +154,8 @@ def prepare_map(m: LogOddsMap, max_px: int, trajectories: Sequence[Trajectory] =
     # A block that saw only free cells has max < 0; unknown-only blocks stay 0. Bands of whole
     # blocks: reduced one by one and stacked, they are the whole crop reduced
     step = max(k, KNOWN_BAND_ROWS // k * k)
-    crop = np.vstack([block_max(band[:, c0:c1], k) for band in m.bands(r0, r1, step)])
+    parts = [block_max(band[:, c0:c1], k) for band in m.bands(r0, r1, step)]
+    crop = np.vstack(parts) if parts else np.zeros((0, -(-max(c1 - c0, 0) // k)), dtype=np.float32)
     p_occ = 1.0 / (1.0 + np.exp(-np.clip(crop.astype(np.float64), -30, 30)))
     extent = (ox + c0 * res, ox + (c0 + crop.shape[1] * k) * res, oy + r0 * res, oy + (r0 + crop.shape[0] * k) * res)
     return MapView(image=1.0 - p_occ, extent=extent)
