@@ -79,7 +79,9 @@ def _pillow(rgba: np.ndarray) -> bytes:
     h, w = rgba.shape[:2]
     image = Image.frombuffer("RGBA", (w, h), np.ascontiguousarray(rgba), "raw", "RGBA", 0, 1)
     info = PngImagePlugin.PngInfo()
-    info.add_text("Software", png._imsave_software())
+    software = png._imsave_software()
+    if software is not None:
+        info.add_text("Software", software)
     buf = io.BytesIO()
     image.save(buf, format="png", pnginfo=info, dpi=(100, 100))
     return buf.getvalue()
@@ -150,3 +152,12 @@ def test_png_bands_of_the_wrong_size_are_refused():
         png.write_png_bands(io.BytesIO(), 5, 5, [rgba])
     with pytest.raises(ValueError, match="shape"):
         png.write_png_bands(io.BytesIO(), 6, 4, [rgba])
+
+
+def test_png_of_no_pixels_or_of_other_than_bytes_is_refused():
+    with pytest.raises(ValueError, match="at least one pixel"):
+        png.write_png_bands(io.BytesIO(), 0, 3, [])
+    with pytest.raises(ValueError, match="uint8"):
+        png.write_png_bands(io.BytesIO(), 5, 4, [np.zeros((4, 5, 4), dtype=np.float32)])
+    with pytest.raises(ValueError, match="more than"):
+        png.write_png_bands(io.BytesIO(), 5, 3, [np.zeros((2, 5, 4), dtype=np.uint8)] * 2)

@@ -6,6 +6,7 @@ cells sit across band edges."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from slamlab.report import figures
 from slamlab.report.rundir import LogOddsMap
@@ -72,3 +73,47 @@ def test_a_map_file_the_band_reader_cannot_read_is_read_whole(tmp_path):
     data = np.asfortranarray(np.random.default_rng(1).normal(0.0, 1.0, (30, 40)).astype(np.float32))
     m = read_logodds(_written_map(tmp_path, data))
     assert isinstance(m.data, np.ndarray) and np.array_equal(m.data, data)
+
+
+def test_a_map_file_saved_by_numpy_as_float64_is_read_band_by_band_too(tmp_path):
+    from slamlab.io.rundir import LogOddsRows
+    from slamlab.report.rundir import read_logodds
+
+    data = np.random.default_rng(3).normal(0.0, 2.0, (40, 33))
+    path = tmp_path / "map_logodds.npz"
+    np.savez(path, data=data, resolution_m=np.float64(0.05), origin_xy=np.array([-2.0, 3.0]))  # uncompressed, float64
+    m = read_logodds(path)
+    assert isinstance(m.data, LogOddsRows)
+    whole = LogOddsMap(data=data.astype(np.float32), resolution_m=0.05, origin_xy=(-2.0, 3.0))
+    a, b = figures.prepare_map(whole, 10), figures.prepare_map(m, 10)
+    assert a.extent == b.extent and np.array_equal(a.image, b.image)
+
+
+def test_a_damaged_truncated_or_replaced_map_file_is_a_data_error_naming_it(tmp_path):
+    """A map_logodds.npz cut short or with a damaged byte: a DataError naming the file (the
+    report says so, no stack trace), whether found when it is opened or when a figure reads
+    its rows; also when a run replaced it after it was opened."""
+    from slamlab.errors import DataError
+    from slamlab.report.rundir import read_logodds
+
+    data = np.random.default_rng(5).normal(0.0, 2.0, (300, 200)).astype(np.float32)
+    path = _written_map(tmp_path, data)
+    whole = path.read_bytes()
+    path.write_bytes(whole[: len(whole) // 2])
+    with pytest.raises(DataError, match="map_logodds.npz"):
+        figures.prepare_map(read_logodds(path), 50)
+    damaged = bytearray(whole)
+    damaged[len(whole) // 3] ^= 0xFF  # inside data.npy's deflate stream
+    path.write_bytes(bytes(damaged))
+    with pytest.raises(DataError, match="map_logodds.npz"):
+        figures.prepare_map(read_logodds(path), 50)
+    path.write_bytes(whole)
+    m = read_logodds(path)
+    _written_map(tmp_path, data[:, :150])  # a run writes its map again
+    with pytest.raises(DataError, match="changed while it was read"):
+        figures.prepare_map(m, 50)
+
+
+def test_an_empty_crop_is_an_empty_view():
+    view = figures.prepare_map(LogOddsMap(data=np.zeros((0, 5), dtype=np.float32), resolution_m=0.05, origin_xy=(0.0, 0.0)), 10)
+    assert view.image.shape[0] == 0

@@ -77,9 +77,12 @@ def write_png_bands(path: Path | BinaryIO, width: int, height: int, bands: Itera
     The bytes are those Pillow's PNG writer gives the whole image (what plt.imsave called):
     its chunks (IHDR, tEXt Software, pHYs 100 dpi, IDAT, IEND), its row filters (per row the
     first of none, up, sub, Paeth with the least sum of |byte| read as signed, libpng's
-    heuristic, as Pillow's ZipEncode.c picks them without `optimize`), its zlib settings (level
+    heuristic, as Pillow's ZipEncode.c picks them without `optimize`; no further one once a
+    row's best costs 0), its zlib settings (level
     6, 32 kB window, memLevel 9, Z_FILTERED) and its IDAT chunks (the deflate stream cut into
     max(64 kB, 4 x width) pieces). tests/test_png.py checks it against Pillow and imsave."""
+    if width < 1 or height < 1:
+        raise ValueError(f"a PNG has at least one pixel a side, got {width} x {height}")
     own = not hasattr(path, "write")
     f = open(path, "wb") if own else path  # type: ignore[arg-type]
     try:
@@ -96,11 +99,13 @@ def write_png_bands(path: Path | BinaryIO, width: int, height: int, bands: Itera
         previous = np.zeros(4 * width, dtype=np.uint8)
         rows = 0
         for band in bands:
-            band = np.ascontiguousarray(band, dtype=np.uint8)
-            if band.ndim != 3 or band.shape[1:] != (width, 4):
-                raise ValueError(f"expected ({width}, 4) uint8 pixel rows, got a band of shape {band.shape}")
+            if band.dtype != np.uint8 or band.ndim != 3 or band.shape[1:] != (width, 4):
+                raise ValueError(f"expected ({width}, 4) uint8 pixel rows, got a {band.dtype} band of shape {band.shape}")
+            if rows + len(band) > height:
+                raise ValueError(f"the bands hold more than the image's {height} rows")
             if not len(band):
                 continue
+            band = np.ascontiguousarray(band)
             raw = band.reshape(len(band), 4 * width)
             pending += deflate.compress(_filtered_rows(raw, previous))
             previous = raw[-1].copy()

@@ -18,8 +18,8 @@ def filter_rows(raw: np.ndarray, previous: np.ndarray, out: np.ndarray) -> None:
     """Scanlines of pixel rows `raw` (n, m) uint8, RGBA, below the row `previous` (m,) into
     `out` (n, m + 1): each row's filter byte then its filtered bytes. Per row the filter is
     the first of none (0), up (2), sub (1) and Paeth (4) whose cost (the sum of |byte| with
-    each byte read as signed) is strictly lower than the best so far, none tried once the
-    best costs 0; bytes left of the first pixel count as 0."""
+    each byte read as signed) is strictly lower than the best so far; once the best costs 0
+    no further filter is tried. Bytes left of the first pixel count as 0."""
     n, m = raw.shape
     bpp = 4
     for r in range(n):

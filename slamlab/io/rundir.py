@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import os
 import zipfile
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, fields
 from enum import StrEnum
@@ -137,33 +138,46 @@ class FirstScan:
     pose: np.ndarray
 
 
+# what reading a damaged or truncated .npz raises (zip, deflate, .npy header): turned into a DataError naming the file
+_NPZ_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError, RuntimeError, NotImplementedError)
+
+
 def read_logodds(path: Path) -> GridImage:
     """The one reader of `map_logodds.npz`: `data` (H, W) float32 log-odds, `resolution_m`
-    (m), `origin_xy` (m) as a GridImage. A file without those arrays raises DataError naming it."""
+    (m), `origin_xy` (m) as a GridImage. A file without those arrays, or one that cannot be
+    read, raises DataError naming it."""
     res, origin = read_logodds_place(path)
-    with np.load(path) as z:
-        data = np.asarray(z["data"], dtype=np.float32)
+    try:
+        with np.load(path) as z:
+            data = np.asarray(z["data"], dtype=np.float32)
+    except _NPZ_ERRORS as e:
+        raise DataError(path, f"cannot be read ({e})", field="data") from None
     return GridImage(data, res, origin)
 
 
 def read_logodds_place(path: Path) -> tuple[float, tuple[float, float]]:
     """map_logodds.npz's (resolution_m, origin_xy), its `data` left unread; DataError naming
-    the file when it lacks one of the three arrays."""
+    the file when it lacks one of the three arrays or cannot be read."""
     need = ("data", "resolution_m", "origin_xy")
-    with np.load(path) as z:
-        missing = [name for name in need if name not in z]
-        if missing:
-            raise DataError(path, f"missing array(s) {', '.join(missing)} (need {', '.join(need)})")
-        res = float(np.asarray(z["resolution_m"]).reshape(()))
-        origin = np.asarray(z["origin_xy"], dtype=np.float64).reshape(2)
+    try:
+        with np.load(path) as z:
+            missing = [name for name in need if name not in z]
+            if missing:
+                raise DataError(path, f"missing array(s) {', '.join(missing)} (need {', '.join(need)})")
+            res = float(np.asarray(z["resolution_m"]).reshape(()))
+            origin = np.asarray(z["origin_xy"], dtype=np.float64).reshape(2)
+    except _NPZ_ERRORS as e:
+        raise DataError(path, f"cannot be read ({e})") from None
     return res, (float(origin[0]), float(origin[1]))
 
 
 class LogOddsRows:
     """The `data` of a map_logodds.npz read a band of rows at a time from the file, for
     readers that reduce it (the report's map views): a building's map is ~200 MB of float32,
-    its reduced views ~1 MB. `shape` (H, W); `bands(r0, r1, rows)` the rows r0..r1 as float32
-    arrays of `rows` rows (the last may be shorter), decompressed as they are read."""
+    its reduced views ~1 MB. `shape` (H, W) and `dtype` are the file's; `bands(r0, r1, rows)`
+    gives the rows r0..r1 as float32 arrays of `rows` rows (the last may be shorter),
+    decompressed as they are read. A file that no longer holds what it held when it was
+    opened (a run replaced it), or cannot be read, raises DataError naming it."""
 
     def __init__(self, path: Path, shape: tuple[int, int], dtype: np.dtype) -> None:
         self.path = Path(path)
@@ -173,16 +187,21 @@ class LogOddsRows:
     def bands(self, r0: int, r1: int, rows: int) -> Iterator[np.ndarray]:
         w = self.shape[1]
         row_bytes = w * self.dtype.itemsize
-        with zipfile.ZipFile(self.path) as z, z.open("data.npy") as f:
-            _npy_header(f)
-            for r in range(0, r0, rows):  # the rows before r0, read and dropped
-                f.read(min(rows, r0 - r) * row_bytes)
-            for r in range(r0, r1, rows):
-                n = min(rows, r1 - r)
-                buf = f.read(n * row_bytes)
-                if len(buf) != n * row_bytes:
-                    raise DataError(self.path, f"data: the file ends at row {r} of {self.shape[0]}")
-                yield np.frombuffer(buf, dtype=self.dtype).reshape(n, w).astype(np.float32, copy=False)
+        try:
+            with zipfile.ZipFile(self.path) as z, z.open("data.npy") as f:
+                shape, fortran, dtype = _npy_header(f)
+                if tuple(shape) != self.shape or fortran or dtype != self.dtype:
+                    raise DataError(self.path, f"changed while it was read: now {dtype} {shape}, was {self.dtype} {self.shape}", field="data")
+                for r in range(0, r0, rows):  # the rows before r0, read and dropped
+                    f.read(min(rows, r0 - r) * row_bytes)
+                for r in range(r0, r1, rows):
+                    n = min(rows, r1 - r)
+                    buf = f.read(n * row_bytes)
+                    if len(buf) != n * row_bytes:
+                        raise DataError(self.path, f"ends after row {r + len(buf) // row_bytes} of {self.shape[0]}", field="data")
+                    yield np.frombuffer(buf, dtype=self.dtype).reshape(n, w).astype(np.float32, copy=False)
+        except _NPZ_ERRORS as e:
+            raise DataError(self.path, f"cannot be read ({e})", field="data") from None
 
 
 def _npy_header(f: Any) -> tuple[tuple[int, ...], bool, np.dtype]:
@@ -195,12 +214,12 @@ def _npy_header(f: Any) -> tuple[tuple[int, ...], bool, np.dtype]:
 def read_logodds_rows(path: Path) -> tuple[LogOddsRows | np.ndarray, float, tuple[float, float]]:
     """map_logodds.npz as (data, resolution_m, origin_xy), `data` a `LogOddsRows` (read band
     by band when used) when the file keeps it as a 2-D C-order float array; else the whole
-    array (`read_logodds`)."""
+    array (`read_logodds`, which raises DataError naming the file when it cannot be read)."""
     try:
         with zipfile.ZipFile(path) as z, z.open("data.npy") as f:
             shape, fortran, dtype = _npy_header(f)
-    except (KeyError, ValueError, OSError, zipfile.BadZipFile):
-        shape, fortran, dtype = (), True, np.dtype(object)  # not a plain npz member: read_logodds says what is wrong
+    except (KeyError, *_NPZ_ERRORS):
+        shape, fortran, dtype = (), True, np.dtype(object)  # not a plain npz member: read whole, or its error
     if fortran or len(shape) != 2 or dtype.kind != "f":
         whole = read_logodds(path)
         return whole.data, whole.resolution_m, whole.origin_xy

@@ -170,7 +170,8 @@ def _known_rows_cols(m: LogOddsMap) -> tuple[np.ndarray, np.ndarray]:
     h, w = m.shape
     rows = np.zeros(h, dtype=bool)
     cols = np.zeros(w, dtype=bool)
-    for r, band in zip(range(0, h, KNOWN_BAND_ROWS), m.bands(0, h, KNOWN_BAND_ROWS)):
+    for j, band in enumerate(m.bands(0, h, KNOWN_BAND_ROWS)):  # to its end: the file is closed
+        r = j * KNOWN_BAND_ROWS
         known = np.abs(band) > 1e-6
         rows[r:r + KNOWN_BAND_ROWS] = known.any(axis=1)
         cols |= known.any(axis=0)

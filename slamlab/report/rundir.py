@@ -44,7 +44,8 @@ class Trajectory:
 
 @dataclass(frozen=True, slots=True)
 class LogOddsMap:
-    """The raw occupancy grid: `data` (H, W) float32 log-odds, row 0 = lowest y;
+    """The raw occupancy grid: `data` (H, W) log-odds (float32, or a `LogOddsRows` whose
+    bands are), row 0 = lowest y;
     cell (r, c) covers x in [origin_x + c*res, +res), y in [origin_y + r*res, +res).
     A run's map is `data` = a `LogOddsRows`, read from its file a band of rows at a time
     (`bands`) whenever a figure reduces it: a building's map is ~200 MB as an array, and a
@@ -187,7 +188,8 @@ class RunDir:
         return self._cache[key]
 
     def load_map(self) -> LogOddsMap | None:
-        """The log-odds grid, or None when the run wrote no (readable) map."""
+        """The log-odds grid, or None when the run wrote no map (a file that cannot be read
+        raises DataError naming it, when it is opened or when a figure reads its rows)."""
         return self._cached("map", lambda: read_logodds(self.path / RunFile.MAP_LOGODDS))
 
     def load_trajectory(self, which: str = "slam") -> Trajectory | None:

@@ -5,7 +5,7 @@ Any filter's final map is this function of some poses: the course filter's share
 its online poses at the processed steps; a pose graph's map is its optimised poses; a map
 made on purpose from a trajectory with an error injected (a rotation from some time on)
 shows what a broken loop looks like. It uses the filters' own pieces (`scan_to_points`'s
-projection, `OccupancyGrid.insert`'s ray casting), so on the course filter it gives the
+projection, `OccupancyGrid`'s growth and ray casting), so on the course filter it gives the
 run's map to the bit (tested).
 """
 
