@@ -307,12 +307,14 @@ def note_hits(lo, thresh, hit_dx, hit_dy, hit_n, pts, x0, y0, inv_res, rows, col
     return m
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def copy_nonzero(src, dst, r0, c0):
     """dst[r0 + r, c0 + c] = src[r, c] wherever src[r, c] != 0, for a zeroed `dst` (a grown
     grid): the same array as a plain copy, but a page of `dst` where src holds only zeros
-    (unmapped space around a building) is never written, so the system never backs it."""
-    for r in range(src.shape[0]):
+    (unmapped space around a building) is never written, so the system never backs it.
+    Rows on all cores (each cell written once, whatever the thread count): a building's map
+    grows ~100 times, and the copies took 5.6 s of the hospital run on one core."""
+    for r in numba.prange(src.shape[0]):
         for c in range(src.shape[1]):
             v = src[r, c]
             if v != 0:
