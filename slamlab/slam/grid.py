@@ -98,6 +98,13 @@ def growth_pads(origin: FloatArray, shape: tuple[int, int], res: float, margin_m
     return pad_b, pad_t, pad_l, pad_r
 
 
+def cells_at(xy: FloatArray, origin: FloatArray, res: float) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) int64 of world points (M, 2) m on a grid of origin `origin` (m) and `res` m cells."""
+    c = np.floor((xy[:, 0] - origin[0]) / res).astype(np.int64)
+    r = np.floor((xy[:, 1] - origin[1]) / res).astype(np.int64)
+    return r, c
+
+
 def grown_origin(origin: FloatArray, pad_l: int, pad_b: int, res: float) -> FloatArray:
     """A grid's origin (m) after it grew by `pad_l` cells on the left and `pad_b` below."""
     return origin - np.array([pad_l, pad_b]) * res
@@ -176,9 +183,7 @@ class OccupancyGrid:
 
     def cells(self, xy: FloatArray) -> tuple[np.ndarray, np.ndarray]:
         """(rows, cols) int64 of world points (M, 2) m (may lie outside the grid)."""
-        c = np.floor((xy[:, 0] - self.origin[0]) / self.res).astype(np.int64)
-        r = np.floor((xy[:, 1] - self.origin[1]) / self.res).astype(np.int64)
-        return r, c
+        return cells_at(xy, self.origin, self.res)
 
     def ensure(self, xmin: float, ymin: float, xmax: float, ymax: float) -> None:
         """Grow the grid (by the overshoot + growth margin) so the box (m) fits inside."""

@@ -17,7 +17,7 @@ import numpy as np
 
 from slamlab.frames import GridImage, Sequence
 from slamlab.geometry import FloatArray
-from slamlab.slam.grid import MapSettings, OccupancyGrid, growth_pads, grown_origin
+from slamlab.slam.grid import MapSettings, OccupancyGrid, cells_at, growth_pads, grown_origin
 from slamlab.slam.scan import ScanPoints, points_to_world, range_limits, scans_to_points
 
 CHUNK = 500  # scans projected at once (a few MB of points)
@@ -47,46 +47,41 @@ def map_from_trajectory(
     start = poses[order[0]]
     grid = OccupancyGrid(settings, (float(start[0]), float(start[1])))
     res, margin = grid.res, settings.growth_margin_m
-    # Pass 1: how the grid would grow, the scans inserted one by one (each scan's box, then its
-    # cells at the origin of that moment): every scan's origin, and the rows / cols added below /
-    # left of the grid up to it. A growth moves what the grid holds by whole cells, so a scan's
-    # cells in the final grid are its cells then plus the rows / cols added after it. Pass 2
-    # allocates the final grid once and ray-casts there: the same log-odds, bit for bit, without
-    # the hundreds of growths and copies of a building's map (hospital: 5.5 of the 7 s it took).
+    # Pass 1: the scans as `insert` takes them one by one: the grid grows to fit each scan's box,
+    # then the scan's cells are taken at the origin of that moment. A growth moves what the grid
+    # holds by whole cells, so a scan's cells in the final grid are its cells then plus the rows /
+    # cols added below / left after it. Pass 2 allocates the final grid once and ray-casts there:
+    # the same log-odds, bit for bit, without the hundreds of growths and copies of a building's
+    # map (hospital: 5.5 of the 7 s it took).
     origin, shape = grid.origin.copy(), grid.shape
-    origins, below, left = np.zeros((len(order), 2)), np.zeros(len(order), dtype=np.int64), np.zeros(len(order), dtype=np.int64)
+    placed = []  # per scan: its cells then (int32 rows, cols; sensor row, col) and the rows / cols added so far
     added_b = added_l = 0
-    for j, pts, pose in _placed(sequence, poses, order, settings, min_r, max_r):
-        sensor = points_to_world(pts.origin.reshape(1, 2), pose)[0]
+    for pts, pose in _placed(sequence, poses, order, settings, min_r, max_r):
+        sensor = points_to_world(pts.origin.reshape(1, 2), pose)
         world = points_to_world(pts.xy, pose)
-        xs, ys = np.append(world[:, 0], sensor[0]), np.append(world[:, 1], sensor[1])
+        xs, ys = np.append(world[:, 0], sensor[0, 0]), np.append(world[:, 1], sensor[0, 1])
         pad_b, pad_t, pad_l, pad_r = growth_pads(origin, shape, res, margin, (xs.min(), ys.min(), xs.max(), ys.max()))
         if pad_b or pad_t or pad_l or pad_r:
             origin = grown_origin(origin, pad_l, pad_b, res)
             shape = (shape[0] + pad_b + pad_t, shape[1] + pad_l + pad_r)
             added_b, added_l = added_b + pad_b, added_l + pad_l
-        origins[j], below[j], left[j] = origin, added_b, added_l
+        rows, cols = cells_at(world, origin, res)
+        sr, sc = cells_at(sensor, origin, res)
+        placed.append((rows.astype(np.int32), cols.astype(np.int32), int(sr[0]), int(sc[0]), added_b, added_l))
     grid.resize_empty(origin, shape)
-    for j, pts, pose in _placed(sequence, poses, order, settings, min_r, max_r):
-        dr, dc = added_b - below[j], added_l - left[j]  # rows / cols the grid grew by below / left after this scan
-        ox, oy = origins[j]
-        world = points_to_world(pts.xy, pose)
-        sensor = points_to_world(pts.origin.reshape(1, 2), pose)
-        rows = np.floor((world[:, 1] - oy) / res).astype(np.int64) + dr
-        cols = np.floor((world[:, 0] - ox) / res).astype(np.int64) + dc
-        sr = int(np.floor((sensor[:, 1] - oy) / res).astype(np.int64)[0]) + dr
-        sc = int(np.floor((sensor[:, 0] - ox) / res).astype(np.int64)[0]) + dc
-        grid.insert_cells((sr, sc), rows, cols)
+    for rows, cols, sr, sc, below, left in placed:
+        dr, dc = added_b - below, added_l - left  # rows / cols the grid grew by below / left after this scan
+        grid.insert_cells((sr + dr, sc + dc), rows.astype(np.int64) + dr, cols.astype(np.int64) + dc)
     return grid.take_image()
 
 
-def _placed(sequence: Sequence, poses: FloatArray, order: np.ndarray, settings: MapSettings, min_r: float, max_r: float) -> Iterator[tuple[int, ScanPoints, FloatArray]]:
-    """(position in `order`, points, pose) of each scan of `order` with points, in order;
+def _placed(sequence: Sequence, poses: FloatArray, order: np.ndarray, settings: MapSettings, min_r: float, max_r: float) -> Iterator[tuple[ScanPoints, FloatArray]]:
+    """(points, pose) of each scan of `order` with points, in order;
     projected `CHUNK` scans at a time as the filters project them (`scans_to_points`: to the bit)."""
     scans = sequence.scans
     for lo in range(0, len(order), CHUNK):
         chunk = order[lo : lo + CHUNK]
         points = scans_to_points([scans[int(i)] for i in chunk], sequence.body_height_m, min_r, max_r, settings.ground_threshold_m)
-        for j, (i, pts) in enumerate(zip(chunk, points), start=lo):
+        for i, pts in zip(chunk, points):
             if len(pts.xy):
-                yield j, pts, poses[i]
+                yield pts, poses[i]
