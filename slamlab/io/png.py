@@ -78,9 +78,9 @@ def write_png_bands(path: Path | BinaryIO, width: int, height: int, bands: Itera
     its chunks (IHDR, tEXt Software, pHYs 100 dpi, IDAT, IEND), its row filters (per row the
     first of none, up, sub, Paeth with the least sum of |byte| read as signed, libpng's
     heuristic, as Pillow's ZipEncode.c picks them without `optimize`; no further one once a
-    row's best costs 0), its zlib settings (level
-    6, 32 kB window, memLevel 9, Z_FILTERED) and its IDAT chunks (the deflate stream cut into
-    max(64 kB, 4 x width) pieces). tests/test_png.py checks it against Pillow and imsave."""
+    row's best costs 0), its zlib settings (level 6, 32 kB window, memLevel 9, Z_FILTERED)
+    and its IDAT chunks (the deflate stream cut into max(64 kB, 4 x width) pieces).
+    tests/test_png.py checks it against Pillow and imsave."""
     if width < 1 or height < 1:
         raise ValueError(f"a PNG has at least one pixel a side, got {width} x {height}")
     own = not hasattr(path, "write")
