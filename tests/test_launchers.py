@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+from slamlab.report.html import fmt_number
+
 pytestmark = pytest.mark.slow
 
 
@@ -33,7 +35,7 @@ def run_sweep(launcher_args: list[str], tmp_path: Path, sim_cache: Path, **env_v
     for job, particles in (("0", 4), ("1", 8)):
         m = json.loads((sweep / job / "metrics.json").read_text())
         assert m["status"] == "ok" and m["particles"] == particles
-        assert f"{m['trajectory']['rmse_m']:.3f}" in page
+        assert fmt_number(m["trajectory"]["rmse_m"]) in page  # as the report writes it (4 significant digits)
     return proc
 
 
