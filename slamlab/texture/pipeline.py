@@ -43,6 +43,7 @@ from slamlab.texture.align import sample_colors, unmirror_calibration
 from slamlab.texture.backproject import Backprojector, DepthPoints
 from slamlab.texture.detection import DetectionCounts
 from slamlab.texture.ground import GroundDetector, GroundQuery
+from slamlab.texture.open3d_lite import import_open3d
 from slamlab.texture.samples import FrameSample, sample_frame, sample_ordinals
 from slamlab.texture.texture_map import TextureAccumulator, resample_to_grid
 
@@ -579,7 +580,7 @@ def save_texture_outputs(
     _write_png(p, texture_over_map_image(result, occupancy_prob))
     written["over_map"] = p
 
-    import open3d as o3d
+    o3d = import_open3d()  # without its web visualiser (0.7 s, ~40 MB): open3d_lite
 
     p = files.cloud
     pcd = o3d.geometry.PointCloud()
