@@ -58,8 +58,8 @@ def test_a_consistent_run_says_so_in_one_line_at_the_top(tmp_path: Path) -> None
     assert "beams contradicting the map over time" in page
     loaded = load_run(run)
     fig = overlay_figure(loaded.load_map(), loaded.files.read_arrays(RunFile.CONSISTENCY_MAP), [], None)
-    events = fig.axes[0].get_images()[-1].get_array()
-    assert (events[..., 3] > 0.9).sum() == 0  # nothing strong: a consistent map's few contradictions stay pale
+    events = fig.axes[0].get_images()[-1].get_array()  # RGBA bytes (`figures.rgba_bytes`)
+    assert (events[..., 3] > 0.9 * 255).sum() == 0  # nothing strong: a consistent map's few contradictions stay pale
 
 
 def test_a_broken_run_names_where_and_when_and_circles_it_on_the_map(tmp_path: Path) -> None:
@@ -80,8 +80,8 @@ def test_a_broken_run_names_where_and_when_and_circles_it_on_the_map(tmp_path: P
     assert len(circles) == len(spans)
     cx, cy = np.mean(circles[0].get_xdata()), np.mean(circles[0].get_ydata())
     assert abs(cx - span.x_m) < 0.1 and abs(cy - span.y_m) < 0.1
-    events = ax.get_images()[-1].get_array()
-    assert (events[..., 3] > 0.9).sum() > 20  # the broken stretch's contradicting cells, drawn strong
+    events = ax.get_images()[-1].get_array()  # RGBA bytes (`figures.rgba_bytes`)
+    assert (events[..., 3] > 0.9 * 255).sum() > 20  # the broken stretch's contradicting cells, drawn strong
     curve = curve_figure(loaded.files.read_columns(RunFile.CONSISTENCY), 0.4, spans)
     shaded = [p for p in curve.axes[0].patches]
     assert len(shaded) == len(spans)
@@ -109,3 +109,24 @@ def test_an_extra_section_is_drawn_from_its_own_files(tmp_path: Path, monkeypatc
     from slamlab.report.loops_section import loops_section
 
     assert SECTIONS == [loops_section]  # the one built in: a graph run's loop closures
+
+
+def test_an_overlay_handed_over_as_bytes_draws_the_same_pixels():
+    """`figures.rgba_bytes`: float RGBA given to imshow as the bytes matplotlib would make of
+    it draws the same figure (nearest sampling), with smaller temporaries while it is saved."""
+    import numpy as np
+
+    from slamlab.report.figures import fig_to_data_uri, rgba_bytes, subplots
+
+    rng = np.random.default_rng(1)
+    layer = np.zeros((120, 90, 4))
+    hit = rng.random((120, 90)) > 0.9
+    layer[hit, :3] = (0.84, 0.15, 0.16)
+    layer[hit, 3] = rng.choice([0.3, 0.95], hit.sum())
+
+    def draw(image):
+        fig, ax = subplots(figsize=(5.0, 6.0))
+        ax.imshow(image, origin="lower", extent=(0.0, 9.0, 0.0, 12.0), interpolation="nearest")
+        return fig_to_data_uri(fig)
+
+    assert draw(rgba_bytes(layer)) == draw(layer)

@@ -178,6 +178,14 @@ def _known_rows_cols(m: LogOddsMap) -> tuple[np.ndarray, np.ndarray]:
     return np.flatnonzero(rows), np.flatnonzero(cols)
 
 
+def rgba_bytes(rgba: np.ndarray) -> np.ndarray:
+    """Float RGBA in [0, 1] as the uint8 RGBA matplotlib makes of it when it draws it
+    ((x * 255) truncated). Handed to `imshow` as bytes, it is resampled as bytes, where float
+    RGBA is resampled in float64 copies at the output's size (a 500 px overlay in a 13 in
+    figure: 90 -> 55 MB while the figure is saved). The same pixels with nearest sampling."""
+    return (np.asarray(rgba, dtype=np.float64) * 255).astype(np.uint8)
+
+
 def draw_map(ax, view: MapView | None) -> None:
     if view is not None:
         # Grey levels as uint8 RGBA (the "gray" colormap, slamlab.io.png): matplotlib then
