@@ -30,7 +30,7 @@ if TYPE_CHECKING:  # for the annotation only: the texture pipeline (open3d etc.)
 def neighbour_contrast(color: np.ndarray, mask: np.ndarray) -> float:
     """Mean absolute colour difference (0-255, channel mean) between 4-neighbour cell pairs
     that are both in `mask`: a sharpness score (blur lowers it)."""
-    c = np.asarray(color, dtype=np.float64)
+    c = np.asarray(color)  # as it is: the pairs' cells are taken first, then made float64 (not a whole-grid copy)
     diffs = []
     for a, b, ma, mb in (
         (c[:, 1:], c[:, :-1], mask[:, 1:], mask[:, :-1]),
@@ -38,7 +38,7 @@ def neighbour_contrast(color: np.ndarray, mask: np.ndarray) -> float:
     ):
         both = ma & mb
         if np.any(both):
-            diffs.append(np.abs(a[both] - b[both]).mean(axis=1))
+            diffs.append(np.abs(a[both].astype(np.float64) - b[both].astype(np.float64)).mean(axis=1))
     if not diffs:
         return float("nan")
     return float(np.concatenate(diffs).mean())

@@ -20,6 +20,8 @@ import numpy as np
 
 from slamlab.frames import GridImage
 
+RESAMPLE_BAND_PIXELS = 1 << 19  # `resample_to_grid` bins this many source pixels at a time
+
 
 @numba.njit(cache=True, nogil=True)
 def _accumulate(lin, colors, xyz, color_sum, xyz_sum, count, robust, reject, min_count):  # pragma: no cover - compiled
@@ -157,13 +159,22 @@ def resample_to_grid(
     xs = texture.origin_xy[0] + (np.arange(sw) + 0.5) * texture.resolution_m
     r = np.floor((ys - origin_xy[1]) / resolution_m).astype(np.int64)
     c = np.floor((xs - origin_xy[0]) / resolution_m).astype(np.int64)
-    rr, cc = np.meshgrid(r, c, indexing="ij")
-    ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-    lin = (rr * w + cc)[ok]
-    n = np.bincount(lin, minlength=h * w).astype(np.float64)
+    cols = np.flatnonzero((c >= 0) & (c < w))
+    n = np.zeros(h * w)
     out = np.zeros((h * w, 3))
-    for k in range(3):
-        out[:, k] = np.bincount(lin, weights=src[..., k][ok].astype(np.float64), minlength=h * w)
+    # a band of source rows at a time: the cell indices and weights of a few MB of source pixels,
+    # not of the whole image (a simulated floor's made the texture stage's peak). Integer
+    # colours (uint8) sum exactly in float64, so the bands give the one-pass sums, bit for bit.
+    band = max(1, RESAMPLE_BAND_PIXELS // max(len(cols), 1))
+    for r0 in range(0, sh, band):
+        rows = r0 + np.flatnonzero((r[r0:r0 + band] >= 0) & (r[r0:r0 + band] < h))
+        if len(rows) == 0 or len(cols) == 0:
+            continue
+        lin = (r[rows][:, None] * w + c[cols][None, :]).ravel()
+        block = src[rows][:, cols]
+        n += np.bincount(lin, minlength=h * w)
+        for k in range(3):
+            out[:, k] += np.bincount(lin, weights=block[..., k].ravel().astype(np.float64), minlength=h * w)
     has = n > 0
     out[has] /= n[has, None]
     return out.reshape(h, w, 3), has.reshape(h, w)
