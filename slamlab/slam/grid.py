@@ -153,6 +153,11 @@ class OccupancyGrid:
     def shape(self) -> tuple[int, int]:
         return self.log_odds.shape  # type: ignore[return-value]
 
+    def _updates(self) -> tuple[np.float32, np.float32, np.float32, np.float32]:
+        """The settings' (occupied, free, clamp min, clamp max) log-odds as the ray casts take them."""
+        s = self.s
+        return np.float32(s.log_odds_occupied), np.float32(s.log_odds_free), np.float32(s.clamp_min), np.float32(s.clamp_max)
+
     @property
     def nbytes(self) -> int:
         """Bytes the grid's arrays hold: log-odds, field codes, hit offsets."""
@@ -206,10 +211,8 @@ class OccupancyGrid:
         """Ray-cast one scan given in cells (sensor (row, col), hits' rows and cols, all inside
         the grid) into a grid without a field or hit offsets: what `insert` does after `cells`."""
         assert self.field is None and not self.walls_at_hits, "insert_cells keeps neither a field nor hit offsets"
-        s = self.s
-        raycast_update(self.log_odds, int(sensor_rc[0]), int(sensor_rc[1]), rows, cols, np.float32(s.log_odds_occupied),
-                       np.float32(s.log_odds_free), np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold),
-                       np.array(NO_FLIP, dtype=np.int64))
+        raycast_update(self.log_odds, int(sensor_rc[0]), int(sensor_rc[1]), rows, cols, *self._updates(),
+                       np.float32(self.s.occupied_threshold), np.array(NO_FLIP, dtype=np.int64))
 
     def resize_empty(self, origin: FloatArray, shape: tuple[int, int]) -> None:
         """Make a grid that holds nothing yet (a fresh one, no field) `shape` cells at `origin` (m)."""
@@ -266,9 +269,7 @@ class OccupancyGrid:
         self.ensure(xs.min(), ys.min(), xs.max(), ys.max())
         rows, cols = self.cells(points_xy)
         sr, sc = self.cells(np.asarray(sensor_xy, dtype=np.float64).reshape(1, 2))
-        s = self.s
-        args = (self.log_odds, int(sr[0]), int(sc[0]), rows, cols, np.float32(s.log_odds_occupied), np.float32(s.log_odds_free),
-                np.float32(s.clamp_min), np.float32(s.clamp_max), np.float32(s.occupied_threshold))
+        args = (self.log_odds, int(sr[0]), int(sc[0]), rows, cols, *self._updates(), np.float32(self.s.occupied_threshold))
         if self.field is None:
             raycast_update(*args, np.array(NO_FLIP, dtype=np.int64))
             self._note_hits(points_xy, rows, cols, NO_CELLS)
@@ -296,14 +297,12 @@ class OccupancyGrid:
         pts = np.concatenate(points_xy)
         reach = np.concatenate([pts, sensors_xy])
         self.ensure(*reach.min(axis=0), *reach.max(axis=0))
-        s = self.s
         rows, cols = self.cells(pts)
         sensor_rows, sensor_cols = self.cells(np.asarray(sensors_xy, dtype=np.float64))
         starts = np.concatenate([[0], np.cumsum([len(p) for p in points_xy])]).astype(np.int64)
         # the grid's rows in bands, a few for each core (the result does not depend on them)
         band_rows = max(RAY_BAND_ROWS_MIN, -(-self.shape[0] // (4 * numba.get_num_threads())))
-        raycast_many_bands(self.log_odds, sensor_rows, sensor_cols, rows, cols, starts, np.float32(s.log_odds_occupied),
-                           np.float32(s.log_odds_free), np.float32(s.clamp_min), np.float32(s.clamp_max), band_rows)
+        raycast_many_bands(self.log_odds, sensor_rows, sensor_cols, rows, cols, starts, *self._updates(), band_rows)
         # the hits' offsets read nothing of the log-odds (no moved walls to list): taken in the
         # scans' order after them, they are what scan-by-scan gave
         self._note_hits(pts, rows, cols, NO_CELLS)
