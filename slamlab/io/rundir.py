@@ -146,28 +146,36 @@ def read_logodds(path: Path) -> GridImage:
     """The one reader of `map_logodds.npz`: `data` (H, W) float32 log-odds, `resolution_m`
     (m), `origin_xy` (m) as a GridImage. A file without those arrays, or one that cannot be
     read, raises DataError naming it."""
-    res, origin = read_logodds_place(path)
     try:
-        with np.load(path) as z:
-            data = np.asarray(z["data"], dtype=np.float32)
+        with np.load(path) as z:  # opened once for the place and the data
+            res, origin = _logodds_place(z, path)
+            try:
+                data = np.asarray(z["data"], dtype=np.float32)
+            except _NPZ_ERRORS as e:
+                raise DataError(path, f"cannot be read ({e})", field="data") from None
     except _NPZ_ERRORS as e:
-        raise DataError(path, f"cannot be read ({e})", field="data") from None
+        raise DataError(path, f"cannot be read ({e})") from None
     return GridImage(data, res, origin)
 
 
 def read_logodds_place(path: Path) -> tuple[float, tuple[float, float]]:
     """map_logodds.npz's (resolution_m, origin_xy), its `data` left unread; DataError naming
     the file when it lacks one of the three arrays or cannot be read."""
-    need = ("data", "resolution_m", "origin_xy")
     try:
         with np.load(path) as z:
-            missing = [name for name in need if name not in z]
-            if missing:
-                raise DataError(path, f"missing array(s) {', '.join(missing)} (need {', '.join(need)})")
-            res = float(np.asarray(z["resolution_m"]).reshape(()))
-            origin = np.asarray(z["origin_xy"], dtype=np.float64).reshape(2)
+            return _logodds_place(z, path)
     except _NPZ_ERRORS as e:
         raise DataError(path, f"cannot be read ({e})") from None
+
+
+def _logodds_place(z: Any, path: Path) -> tuple[float, tuple[float, float]]:
+    """(resolution_m, origin_xy) of the open map_logodds.npz `z`, after checking it holds all three arrays."""
+    need = ("data", "resolution_m", "origin_xy")
+    missing = [name for name in need if name not in z]
+    if missing:
+        raise DataError(path, f"missing array(s) {', '.join(missing)} (need {', '.join(need)})")
+    res = float(np.asarray(z["resolution_m"]).reshape(()))
+    origin = np.asarray(z["origin_xy"], dtype=np.float64).reshape(2)
     return res, (float(origin[0]), float(origin[1]))
 
 
