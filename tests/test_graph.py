@@ -28,7 +28,7 @@ from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.submaps import search_grid_of
 from slamlab.slam.grid import OccupancyGrid
 from slamlab.slam.graph.run import _try_group
-from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, consistency_matrix, max_clique, tied_distances
+from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, consistency_matrix, max_clique, shortest_paths, tied_distances
 from test_slam_engine import _cfg
 
 _spec = importlib.util.spec_from_file_location("sim_carmen", Path(__file__).resolve().parents[1] / "benchmarks" / "sim_carmen.py")
@@ -258,6 +258,38 @@ def test_a_closure_ties_two_far_places_of_the_path_together():
     far = tied_distances(path, np.zeros((0, 2)), np.array([10, 190]))
     tied = tied_distances(path, np.array([[12, 188]]), np.array([10, 190]))
     assert far[0, 1] == pytest.approx(180.0) and tied[0, 1] == pytest.approx(4.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_shortest_paths_equal_scipys_dijkstra_bit_for_bit(seed):
+    """`shortest_paths` (the standard library's heap) gives SciPy's distances to the last bit, on
+    graphs like the verifier's (a path of uneven steps with near-free ties across it) and on
+    random ones with parallel edges, isolated nodes and unreachable parts."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(4, 300))
+    if seed % 2 == 0:  # the verifier's graphs: consecutive key nodes along the path, ties of 1e-9
+        steps = rng.uniform(0.0, 50.0, n - 1) * (rng.random(n - 1) > 0.1)
+        a, b, w = np.arange(n - 1), np.arange(1, n), np.maximum(steps, 1e-9)
+        t = rng.integers(0, n, (int(rng.integers(0, n)), 2))
+        a, b, w = np.concatenate([a, t[:, 0]]), np.concatenate([b, t[:, 1]]), np.concatenate([w, np.full(len(t), 1e-9)])
+    else:  # random weights, some pairs joined twice, some nodes joined to nothing
+        m = int(rng.integers(0, 3 * n))
+        a, b, w = rng.integers(0, n - 2, m), rng.integers(0, n - 2, m), rng.exponential(3.0, m) * rng.uniform(0.5, 2.0, m)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    order = np.lexsort((w, hi, lo))  # as tied_distances does: one edge per pair, the cheapest (SciPy would add them up)
+    lo, hi, w = lo[order], hi[order], w[order]
+    first = np.ones(len(lo), dtype=bool)
+    first[1:] = (lo[1:] != lo[:-1]) | (hi[1:] != hi[:-1])
+    keep = first & (lo != hi)
+    lo, hi, w = lo[keep], hi[keep], w[keep]
+    sources = rng.choice(n - 2, size=min(n - 2, 7), replace=False)  # the last two nodes are no source
+    ours = shortest_paths(n, lo, hi, w, sources)
+    theirs = dijkstra(csr_matrix((w, (lo, hi)), shape=(n, n)), directed=False, indices=sources)
+    assert np.array_equal(ours, theirs)  # inf where unreachable on both
+    assert seed % 2 == 0 or np.isinf(ours[:, -2:]).all()  # the random graphs' last two nodes are joined to nothing
 
 
 # ---- the pose graph ---------------------------------------------------------------------------
