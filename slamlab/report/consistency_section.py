@@ -18,6 +18,7 @@ import numpy as np
 from slamlab.io.rundir import RunFile
 from slamlab.io.table import Table
 from slamlab.numeric import block_max
+from slamlab.report.byte_image import imshow_bytes
 from slamlab.report.figures import draw_map, fig_to_data_uri, prepare_map, rgba_bytes, rolling_median, step_times, subplots
 from slamlab.report.mpl import Figure
 from slamlab.report.rundir import LogOddsMap, RunDir, Trajectory
@@ -70,8 +71,7 @@ def overlay_figure(m: LogOddsMap, layers: dict[str, np.ndarray], spans: list[dic
         rgba = np.zeros(share.shape + (4,))
         rgba[..., :3] = (0.89, 0.38, 0.04)
         rgba[..., 3] = np.where(np.isfinite(share) & (share >= 0.2), np.clip(np.nan_to_num(share), 0, 1) * 0.55, 0.0)
-        ax.imshow(rgba_bytes(rgba), origin="lower", extent=(ox, ox + share.shape[1] * g, oy, oy + share.shape[0] * g),
-                  interpolation="nearest", zorder=2)
+        imshow_bytes(ax, rgba_bytes(rgba), (ox, ox + share.shape[1] * g, oy, oy + share.shape[0] * g), zorder=2)
     # the cells with contradicting beams, pooled so that one shows as at least ~2 pixels of the
     # figure (a building's 0.25 m cells would vanish when the figure shrinks them)
     k = max(1, int(math.ceil(max(x1 - x0, y1 - y0) / float(layers["bin_m"]) / (max_px / 2))))
@@ -88,7 +88,7 @@ def overlay_figure(m: LogOddsMap, layers: dict[str, np.ndarray], spans: list[dic
             hit = pooled[name] > 0
             events[hit, :3] = rgb
             events[hit, 3] = alpha
-    ax.imshow(rgba_bytes(events), origin="lower", extent=(ox, ox + w * b, oy, oy + h * b), interpolation="nearest", zorder=3)
+    imshow_bytes(ax, rgba_bytes(events), (ox, ox + w * b, oy, oy + h * b), zorder=3)
     if path is not None and len(path):
         ax.plot(path.xy[:, 0], path.xy[:, 1], color="#1f77b4", lw=0.6, alpha=0.35, zorder=4)
     for i, s in enumerate(spans, start=1):

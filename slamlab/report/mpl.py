@@ -27,8 +27,10 @@ try:
     from matplotlib import colormaps  # noqa: E402
     from matplotlib.collections import LineCollection  # noqa: E402
     from matplotlib.figure import Figure  # noqa: E402
+    from matplotlib.image import AxesImage  # noqa: E402
     from matplotlib.lines import Line2D  # noqa: E402
+    from matplotlib.transforms import Affine2D, Bbox, TransformedBbox  # noqa: E402
 finally:
     _artist.kwdoc = _kwdoc
 
-__all__ = ["Figure", "Line2D", "LineCollection", "colormaps"]
+__all__ = ["Affine2D", "AxesImage", "Bbox", "Figure", "Line2D", "LineCollection", "TransformedBbox", "colormaps"]
