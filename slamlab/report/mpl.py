@@ -25,6 +25,7 @@ _kwdoc = _artist.kwdoc
 _artist.kwdoc = lambda artist: ""
 try:
     from matplotlib import colormaps  # noqa: E402
+    from matplotlib.backend_bases import FigureCanvasBase  # noqa: E402
     from matplotlib.collections import LineCollection  # noqa: E402
     from matplotlib.figure import Figure  # noqa: E402
     from matplotlib.image import AxesImage  # noqa: E402
@@ -33,4 +34,4 @@ try:
 finally:
     _artist.kwdoc = _kwdoc
 
-__all__ = ["Affine2D", "AxesImage", "Bbox", "Figure", "Line2D", "LineCollection", "TransformedBbox", "colormaps"]
+__all__ = ["Affine2D", "AxesImage", "Bbox", "Figure", "FigureCanvasBase", "Line2D", "LineCollection", "TransformedBbox", "colormaps"]
