@@ -277,19 +277,26 @@ def run_texture_stage(seq: Sequence, result: SlamResult, setup: RunSetup, run_di
     slam_tex, odo_tex = textures["slam"], textures["odometry"]
     # the scores and the true texture's image first: their float64 temporaries (the true floor
     # averaged into the grid: ~20 MB for the default run's 800 x 800 cells) then come and go
-    # before Open3D's libraries are loaded for the clouds, not on top of them (`make run`'s peak)
-    if seq.ground_truth is not None:
-        out = texture_metrics(slam_tex, seq.ground_truth)
-        out["odometry"] = texture_metrics(odo_tex, seq.ground_truth)
-    else:
-        out = texture_metrics(slam_tex, None)
-    if seq.ground_truth is not None and seq.ground_truth.floor_texture is not None:
-        save_truth_texture(slam_tex, seq.ground_truth.floor_texture, run / RunFile.TEXTURE_TRUTH)
+    # before Open3D's libraries are loaded for the clouds, not on top of them (`make run`'s peak).
+    # Should they fail, the textures are still written before the error goes up
+    failed: Exception | None = None
+    try:
+        if seq.ground_truth is not None:
+            out = texture_metrics(slam_tex, seq.ground_truth)
+            out["odometry"] = texture_metrics(odo_tex, seq.ground_truth)
+        else:
+            out = texture_metrics(slam_tex, None)
+        if seq.ground_truth is not None and seq.ground_truth.floor_texture is not None:
+            save_truth_texture(slam_tex, seq.ground_truth.floor_texture, run / RunFile.TEXTURE_TRUTH)
+    except Exception as exc:  # noqa: BLE001 - raised again below, once the textures are on disk
+        failed = exc
     release_freed_memory()
     save_texture_outputs(slam_tex, occ, run.texture_files(TrajectoryKind.SLAM))
     if slam_tex.samples:
         write_samples(run / RunFile.GROUND_FRAMES, slam_tex.samples)
     save_texture_outputs(odo_tex, occ, run.texture_files(TrajectoryKind.ODOMETRY))
+    if failed is not None:
+        raise failed
     return out
 
 

@@ -244,3 +244,24 @@ def test_an_interrupted_run_writes_its_report_marked_interrupted(sim_cache, tmp_
     assert f"Stopped by Ctrl-C at scan {m['interrupted_at_scan']} of {m['scans_total']}" in page
     assert 'alt="occupancy map with trajectories"' in page and 'id="verdict-line"' in page
     assert not list((tmp_path / "r").glob(".partial-*"))
+
+
+def test_a_failing_texture_score_keeps_the_textures_and_says_so(sim_cache, tmp_path, monkeypatch):
+    """The texture stage scores before it writes its files (memory: the scores' temporaries come
+    before Open3D loads); a score that fails must still leave the textures and the SLAM results
+    on disk, and the run says the texture stage failed."""
+    import slamlab.eval.texture
+
+    def broken(result, truth):
+        raise MemoryError("no room for the true floor texture")
+
+    monkeypatch.setattr(slamlab.eval.texture, "texture_metrics", broken)
+    cfg = make_cfg([*SHORT_SIM, f"dataset.cache_dir={sim_cache}"])
+    run_pipeline(cfg, tmp_path / "r")
+    files = visible_files(tmp_path / "r")
+    for name in ("trajectory.tum", "map.pgm", "texture.png", "texture_over_map.png", "floor.ply",
+                 "texture_odometry.png", "floor_odometry.ply"):
+        assert name in files
+    metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert metrics["texture"]["status"] == "failed" and "no room for the true floor texture" in metrics["texture"]["error"]
+    assert "texture_truth.png" not in files  # it comes after the scores, which failed
