@@ -80,3 +80,66 @@ def test_only_uint8_rgba_goes_the_byte_way():
     im = imshow_bytes(ax, np.zeros((4, 4, 4), dtype=np.uint8), (0.0, 1.0, 0.0, 1.0))
     assert isinstance(im, NearestBytesImage) and im in ax.get_images()
     assert ax.get_xlim() == (0.0, 1.0) and ax.get_ylim() == (0.0, 1.0)  # the data limits follow the extent, as imshow's
+
+
+def test_the_bytes_are_sampled_here_and_anything_else_goes_to_matplotlib(monkeypatch):
+    """The memory saving is the NumPy path being taken: matplotlib's own `make_image` must not
+    run for a plain uint8 RGBA map, and must run where the fast path would be wrong (a rotated
+    image, a float image)."""
+    from matplotlib.image import AxesImage
+    from matplotlib.transforms import Affine2D
+
+    calls = []
+    original = AxesImage.make_image
+
+    def spy(self, *args, **kwargs):
+        calls.append(type(self).__name__)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(AxesImage, "make_image", spy)
+    fig, ax = subplots(figsize=(4.0, 3.0))
+    img = _random_rgba(np.random.default_rng(0), 30, 40, opaque=True)
+    im = imshow_bytes(ax, img, (0.0, 4.0, 0.0, 3.0))
+    fig.savefig(io.BytesIO(), format="png")
+    assert im.samples_as_bytes() and calls == []
+    im.set_transform(Affine2D().rotate_deg_around(2.0, 1.5, 30.0) + ax.transData)
+    assert not im.samples_as_bytes()
+    fig.savefig(io.BytesIO(), format="png")
+    assert calls  # the rotated image went to matplotlib
+    other = imshow_bytes(ax, img, (0.0, 4.0, 0.0, 3.0))
+    other.set_interpolation("bilinear")
+    assert not other.samples_as_bytes()  # another interpolation: matplotlib's
+
+
+def test_a_saved_figure_lets_go_of_its_renderer_at_once(monkeypatch):
+    """`fig_to_data_uri`: the renderer savefig drew with (the whole figure's pixels) is freed when
+    the figure is dropped, not at the garbage collector's next full pass (Text artists cache it,
+    and a figure lives in reference cycles)."""
+    import gc
+    import weakref
+
+    from matplotlib.backends import backend_agg
+
+    from slamlab.report.figures import fig_to_data_uri
+
+    made = []
+    original = backend_agg.FigureCanvasAgg.get_renderer
+
+    def spy(self, *args, **kwargs):
+        renderer = original(self, *args, **kwargs)
+        made.append(weakref.ref(renderer))
+        return renderer
+
+    monkeypatch.setattr(backend_agg.FigureCanvasAgg, "get_renderer", spy)
+    gc.collect()
+    gc.disable()
+    try:
+        fig, ax = subplots(figsize=(6.0, 4.0))
+        ax.plot([0, 1], [0, 1], label="a line")
+        ax.set_title("a title")
+        ax.legend()
+        assert fig_to_data_uri(fig).startswith("data:image/png;base64,")
+        del fig, ax
+        assert made and all(r() is None for r in made)
+    finally:
+        gc.enable()

@@ -21,24 +21,35 @@ import math
 
 import numpy as np
 
-from slamlab.report.mpl import Affine2D, AxesImage, Bbox, TransformedBbox
+from slamlab.report.mpl import Affine2D, AxesImage, Bbox, TransformedBbox, rcParams
 
 
 class NearestBytesImage(AxesImage):
     """An AxesImage of uint8 RGBA (origin "lower" or "upper") sampled by nearest neighbour in
     NumPy (see the module doc)."""
 
-    def make_image(self, renderer, magnification: float = 1.0, unsampled: bool = False):
+    def samples_as_bytes(self, unsampled: bool = False) -> bool:
+        """Whether `make_image` samples this image itself: uint8 RGBA, nearest, no scalar alpha,
+        clipped to the Axes, on axes whose transform only scales and shifts (no rotation or
+        shear). Otherwise matplotlib's own path draws it."""
         A = self._A
         if (unsampled or A is None or A.ndim != 3 or A.shape[2] != 4 or A.dtype != np.uint8
-                or self.get_interpolation() != "nearest" or self.get_alpha() is not None
-                or not self.get_transform().is_affine):
+                or self.get_interpolation() != "nearest" or self.get_alpha() is not None or not self.get_clip_on()):
+            return False
+        trans = self.get_transform()
+        if not trans.is_affine:
+            return False
+        m = trans.get_affine().get_matrix()
+        return m[0, 1] == 0.0 and m[1, 0] == 0.0
+
+    def make_image(self, renderer, magnification: float = 1.0, unsampled: bool = False):
+        if not self.samples_as_bytes(unsampled):
             return super().make_image(renderer, magnification, unsampled)
+        A = self._A
         trans = self.get_transform()
         x1, x2, y1, y2 = self.get_extent()
         out_bbox = TransformedBbox(Bbox([[x1, y1], [x2, y2]]), trans)
-        clip = (self.get_clip_box() or self.axes.bbox) if self.get_clip_on() else self.get_figure(root=True).bbox
-        clipped = Bbox.intersection(out_bbox, clip)
+        clipped = Bbox.intersection(out_bbox, self.get_clip_box() or self.axes.bbox)
         if clipped is None:
             return None, 0, 0, None
         e = clipped.extents * magnification
@@ -66,10 +77,12 @@ def imshow_bytes(ax, rgba: np.ndarray, extent: tuple[float, float, float, float]
                  zorder: float | None = None) -> NearestBytesImage:
     """`ax.imshow(rgba, origin=origin, extent=extent, interpolation="nearest")` for a uint8 RGBA
     raster (H, W, 4), drawn as `NearestBytesImage`; extent (left, right, bottom, top) in data
-    units. Like imshow, it sets the data limits to the extent and clips to the Axes' patch."""
+    units. Like imshow, it sets the Axes' aspect (rcParams "image.aspect") and the data limits
+    to the extent, and clips to the Axes' patch."""
     rgba = np.asarray(rgba)
     if rgba.ndim != 3 or rgba.shape[2] != 4 or rgba.dtype != np.uint8:
         raise ValueError(f"imshow_bytes wants (H, W, 4) uint8 RGBA, got {rgba.shape} {rgba.dtype}")
+    ax.set_aspect(rcParams["image.aspect"])
     im = NearestBytesImage(ax, origin=origin, extent=extent, interpolation="nearest")
     im.set_data(rgba)
     im.set_clip_path(ax.patch)

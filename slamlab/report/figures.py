@@ -23,7 +23,7 @@ from slamlab.heap import release_freed_memory
 from slamlab.io.png import grey_rgba
 from slamlab.io.table import Table
 from slamlab.report.byte_image import imshow_bytes
-from slamlab.report.mpl import Figure, FigureCanvasBase, colormaps  # headless, without docstring tables (mpl.py)
+from slamlab.report.mpl import Figure, Text, colormaps  # headless, without docstring tables (mpl.py)
 from slamlab.report.rundir import LogOddsMap, Trajectory
 from slamlab.numeric import block_max
 
@@ -55,16 +55,15 @@ def subplots(nrows: int = 1, ncols: int = 1, figsize: tuple[float, float] | None
 
 def fig_to_data_uri(fig: Figure, dpi: int = DPI, fmt: str = "png") -> str:
     """Render a figure; return a base64 data URI for an <img src>. PNG for plots;
-    `fmt="jpeg"` for figures made of photos (camera frames), where PNG would be 5x larger.
-    The figure is emptied afterwards (its memory given back at once: see below)."""
+    `fmt="jpeg"` for figures made of photos (camera frames), where PNG would be 5x larger."""
     buf = io.BytesIO()
     fig.savefig(buf, format=fmt, dpi=dpi, bbox_inches="tight", **({"pil_kwargs": {"quality": 85}} if fmt == "jpeg" else {}))
-    # A figure lives in reference cycles (figure, canvas, axes, artists) until the garbage
-    # collector's next full pass, with its canvas's pixel buffer (the whole figure's RGBA: 4-6
-    # MB) and its images. Emptied and given a bare canvas, those go now; the figure is
-    # spent (it draws as an empty one afterwards)
-    fig.clear()
-    FigureCanvasBase(fig)
+    # The renderer savefig drew with (the whole figure's RGBA: 4-6 MB) stays referenced by the
+    # figure's Text artists, which cache it for their layout, and those live in reference cycles
+    # until the garbage collector's next full pass (~80 ms here, too dear per figure): a report
+    # held every figure's renderer at once. Let go here, it goes with savefig's canvas
+    for text in fig.findobj(Text):
+        text._renderer = None
     # rendering makes arrays of the output's size (a map: 10-15 MB each) that glibc keeps
     # resident once freed; given back here, the next figure does not add to them (slamlab.heap)
     release_freed_memory()

@@ -24,14 +24,14 @@ import matplotlib.artist as _artist  # noqa: E402
 _kwdoc = _artist.kwdoc
 _artist.kwdoc = lambda artist: ""
 try:
-    from matplotlib import colormaps  # noqa: E402
-    from matplotlib.backend_bases import FigureCanvasBase  # noqa: E402
+    from matplotlib import colormaps, rcParams  # noqa: E402
     from matplotlib.collections import LineCollection  # noqa: E402
     from matplotlib.figure import Figure  # noqa: E402
     from matplotlib.image import AxesImage  # noqa: E402
     from matplotlib.lines import Line2D  # noqa: E402
+    from matplotlib.text import Text  # noqa: E402
     from matplotlib.transforms import Affine2D, Bbox, TransformedBbox  # noqa: E402
 finally:
     _artist.kwdoc = _kwdoc
 
-__all__ = ["Affine2D", "AxesImage", "Bbox", "Figure", "FigureCanvasBase", "Line2D", "LineCollection", "TransformedBbox", "colormaps"]
+__all__ = ["Affine2D", "AxesImage", "Bbox", "Figure", "Line2D", "LineCollection", "Text", "TransformedBbox", "colormaps", "rcParams"]
