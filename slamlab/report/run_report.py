@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from slamlab.heap import release_freed_memory
 from slamlab.report import error_figures, figures, particle_sections
 from slamlab.report.columns import PARTICLE_KEYS
 from slamlab.report.consistency_section import consistency_section
@@ -288,6 +289,17 @@ def render_run_report(run: RunDir) -> str:
         title_bits.append(count_text(run.particles, "particle"))
     if run.seed is not None:
         title_bits.append(f"seed {run.seed}")
+    sections = {
+        "extras": extra_sections(run),
+        "replay": replay_section(run),
+        "ground_frames": ground_frames_section(run),
+        "first_scan": particle_sections.first_scan_section(run),
+        "predict": particle_sections.predict_section(run),
+        "weights": particle_sections.weights_section(run),
+    }
+    # what the sections' drawing and encoding freed (the replay's frames are encoded on worker
+    # threads, whose heaps glibc keeps) goes back before the page's text is put together
+    release_freed_memory()
     return render(
         "run.html",
         title=" · ".join(title_bits),
@@ -304,14 +316,8 @@ def render_run_report(run: RunDir) -> str:
         weight_img=weight_img,
         one_trajectory=run.one_trajectory,
         consistency=consistency,
-        extras=extra_sections(run),
         error_img=error_img,
         error_note=error_note,
-        replay=replay_section(run),
-        ground_frames=ground_frames_section(run),
-        first_scan=particle_sections.first_scan_section(run),
-        predict=particle_sections.predict_section(run),
-        weights=particle_sections.weights_section(run),
         weighting_notice=particle_sections.weighting_notice(run),
         metric_sections=_metric_sections(run.metrics),
         info=info,
@@ -320,6 +326,7 @@ def render_run_report(run: RunDir) -> str:
         config_source=config_source,
         config_yaml=config_yaml,
         files=files,
+        **sections,
     )
 
 
