@@ -12,7 +12,8 @@ The geometry is matplotlib's own for images drawn on a raster canvas (`_ImageBas
 the image's extent through the Axes' transform, clipped to the Axes, rounded out to whole
 output pixels; pixels then match `imshow(..., interpolation="nearest")` but where a pixel
 centre falls on an image cell's border (tested). Anything else (other interpolation, a
-vector backend, scalar alpha, non-affine axes) goes through matplotlib's own path.
+vector backend, scalar alpha, an unclipped image, axes that rotate, shear or are not affine)
+goes through matplotlib's own path (`NearestBytesImage.samples_as_bytes`).
 """
 
 from __future__ import annotations
