@@ -266,6 +266,7 @@ def run_texture_stage(seq: Sequence, result: SlamResult, setup: RunSetup, run_di
     from slamlab.eval.texture import texture_metrics
     from slamlab.texture.pipeline import run_textures, save_texture_outputs, save_truth_texture
     from slamlab.texture.samples import SAMPLE_FRAMES, write_samples
+    from slamlab.texture.texture_map import resample_to_grid
 
     run = RunDirectory(run_dir)
     occ = artifacts.occupancy_probability(result.log_odds.data)
@@ -280,14 +281,18 @@ def run_texture_stage(seq: Sequence, result: SlamResult, setup: RunSetup, run_di
     # before Open3D's libraries are loaded for the clouds, not on top of them (`make run`'s peak).
     # Should they fail, the textures are still written before the error goes up
     failed: Exception | None = None
+    truth = seq.ground_truth
     try:
-        if seq.ground_truth is not None:
-            out = texture_metrics(slam_tex, seq.ground_truth)
-            out["odometry"] = texture_metrics(odo_tex, seq.ground_truth)
-        else:
-            out = texture_metrics(slam_tex, None)
-        if seq.ground_truth is not None and seq.ground_truth.floor_texture is not None:
-            save_truth_texture(slam_tex, seq.ground_truth.floor_texture, run / RunFile.TEXTURE_TRUTH)
+        # both textures are on the occupancy grid: the true floor is averaged into it once
+        on_grid = (resample_to_grid(truth.floor_texture, slam_tex.count.shape, slam_tex.resolution_m, slam_tex.origin_xy)
+                   if truth is not None and truth.floor_texture is not None else None)
+        same_grid = (odo_tex.count.shape, odo_tex.resolution_m, odo_tex.origin_xy) == (slam_tex.count.shape, slam_tex.resolution_m, slam_tex.origin_xy)
+        out = texture_metrics(slam_tex, truth, on_grid)
+        if truth is not None:
+            out["odometry"] = texture_metrics(odo_tex, truth, on_grid if same_grid else None)
+        if on_grid is not None:
+            save_truth_texture(slam_tex, truth.floor_texture, run / RunFile.TEXTURE_TRUTH, on_grid)
+        del on_grid
     except Exception as exc:  # noqa: BLE001 - raised again below, once the textures are on disk
         failed = exc
     release_freed_memory()

@@ -252,7 +252,7 @@ def test_a_failing_texture_score_keeps_the_textures_and_says_so(sim_cache, tmp_p
     on disk, and the run says the texture stage failed."""
     import slamlab.eval.texture
 
-    def broken(result, truth):
+    def broken(result, truth, truth_on_grid=None):
         raise MemoryError("no room for the true floor texture")
 
     monkeypatch.setattr(slamlab.eval.texture, "texture_metrics", broken)

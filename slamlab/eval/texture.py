@@ -44,21 +44,23 @@ def neighbour_contrast(color: np.ndarray, mask: np.ndarray) -> float:
     return float(np.concatenate(diffs).mean())
 
 
-def texture_metrics(result: TextureResult, truth: GroundTruth | None) -> dict:
+def texture_metrics(result: TextureResult, truth: GroundTruth | None,
+                    truth_on_grid: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
     """The `texture` section of metrics.json for one `TextureResult`.
 
     Always: counters and timings (`result.summary()`), `covered_area_m2`. With a true floor
     texture: `colour_error` (mean |RGB| error, 0-255, over covered cells that the truth
     covers), `colour_error_median`, `colour_rmse`, `covered_fraction` (covered / true floor
     area on the grid), `sharpness` and `truth_sharpness`. With ground labels: `detection`
-    {detector: {precision, recall, f1, frames, tp, fp, fn, tn}}."""
+    {detector: {precision, recall, f1, frames, tp, fp, fn, tn}}. `truth_on_grid`: the true floor
+    texture already averaged into `result`'s grid (`resample_to_grid`), when the caller has it."""
     out = {"status": "ok"}
     out.update(result.summary())
     if result.detection:
         out["detection"] = {name: c.as_dict() for name, c in sorted(result.detection.items())}
     if truth is None or truth.floor_texture is None:
         return out
-    true_col, has = resample_to_grid(truth.floor_texture, result.count.shape, result.resolution_m, result.origin_xy)
+    true_col, has = truth_on_grid or resample_to_grid(truth.floor_texture, result.count.shape, result.resolution_m, result.origin_xy)
     cov = result.covered & has
     out["evaluated_cells"] = int(np.count_nonzero(cov))
     floor_cells = has

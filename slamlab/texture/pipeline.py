@@ -552,10 +552,12 @@ def texture_over_map_image(result: TextureResult, occupancy_prob: np.ndarray) ->
     return np.flipud(img)
 
 
-def save_truth_texture(result: TextureResult, floor_texture: GridImage, path: Path) -> None:
+def save_truth_texture(result: TextureResult, floor_texture: GridImage, path: Path,
+                       truth_on_grid: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """The true floor colour (simulated data) on `result`'s grid, shown only on the cells the
-    texture covers, as RGBA like texture.png: the two images compare cell for cell."""
-    colour, has = resample_to_grid(floor_texture, result.count.shape, result.resolution_m, result.origin_xy)
+    texture covers, as RGBA like texture.png: the two images compare cell for cell.
+    `truth_on_grid`: `floor_texture` already averaged into that grid, when the caller has it."""
+    colour, has = truth_on_grid or resample_to_grid(floor_texture, result.count.shape, result.resolution_m, result.origin_xy)
     rgba = np.zeros(result.count.shape + (4,), dtype=np.uint8)
     shown = has & result.covered
     rgba[shown, :3] = np.clip(np.rint(colour[shown]), 0, 255).astype(np.uint8)  # hidden cells all 0, as in texture.png
