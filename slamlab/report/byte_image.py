@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from slamlab.report.mpl import Affine2D, AxesImage, Bbox, TransformedBbox, rcParams
+from slamlab.report.mpl import Affine2D, AxesImage, Bbox, rcParams
 
 
 class NearestBytesImage(AxesImage):
@@ -49,8 +49,8 @@ class NearestBytesImage(AxesImage):
         A = self._A
         trans = self.get_transform()
         x1, x2, y1, y2 = self.get_extent()
-        out_bbox = TransformedBbox(Bbox([[x1, y1], [x2, y2]]), trans)
-        clipped = Bbox.intersection(out_bbox, self.get_clip_box() or self.axes.bbox)
+        corners = trans.transform([[x1, y1], [x2, y2]])  # display pixels (an axis may run backwards)
+        clipped = Bbox.intersection(Bbox(corners), self.get_clip_box() or self.axes.bbox)
         if clipped is None:
             return None, 0, 0, None
         e = clipped.extents * magnification
@@ -60,7 +60,7 @@ class NearestBytesImage(AxesImage):
         if X1 <= X0 or Y1 <= Y0:
             return None, 0, 0, None
         H, W = A.shape[:2]
-        (dx0, dy0), (dx1, dy1) = trans.transform([[x1, y1], [x2, y2]]) * magnification
+        (dx0, dy0), (dx1, dy1) = corners * magnification
         # the image cell under each output pixel's centre (display y up; row 0 of `out` is the bottom)
         cols = np.floor((X0 + np.arange(X1 - X0) + 0.5 - dx0) / (dx1 - dx0) * W).astype(np.int64)
         rows = np.floor((Y0 + np.arange(Y1 - Y0) + 0.5 - dy0) / (dy1 - dy0) * H).astype(np.int64)

@@ -30,8 +30,8 @@ try:
     from matplotlib.image import AxesImage  # noqa: E402
     from matplotlib.lines import Line2D  # noqa: E402
     from matplotlib.text import Text  # noqa: E402
-    from matplotlib.transforms import Affine2D, Bbox, TransformedBbox  # noqa: E402
+    from matplotlib.transforms import Affine2D, Bbox  # noqa: E402
 finally:
     _artist.kwdoc = _kwdoc
 
-__all__ = ["Affine2D", "AxesImage", "Bbox", "Figure", "Line2D", "LineCollection", "Text", "TransformedBbox", "colormaps", "rcParams"]
+__all__ = ["Affine2D", "AxesImage", "Bbox", "Figure", "Line2D", "LineCollection", "Text", "colormaps", "rcParams"]

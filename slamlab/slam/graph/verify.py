@@ -104,10 +104,11 @@ def shortest_paths(n: int, a: np.ndarray, b: np.ndarray, w: np.ndarray, sources:
     (tested equal to it, bit for bit). Why not SciPy: importing scipy.sparse.csgraph took
     ~30 MB and ~0.35 s in every graph run (issue 44), for graphs of a few hundred nodes
     searched a few times per loop closure."""
-    order = np.argsort(np.concatenate([a, b]), kind="stable")
+    frm = np.concatenate([a, b])  # each edge both ways, grouped by the node it leaves
+    order = np.argsort(frm, kind="stable")
     to = np.concatenate([b, a])[order].tolist()
     weight = np.concatenate([w, w])[order].astype(np.float64).tolist()
-    start = np.searchsorted(np.concatenate([a, b])[order], np.arange(n + 1)).tolist()
+    start = np.searchsorted(frm[order], np.arange(n + 1)).tolist()
     out = np.full((len(sources), n), np.inf)
     for row, src in enumerate(np.asarray(sources, dtype=np.int64).tolist()):
         dist = [float("inf")] * n
