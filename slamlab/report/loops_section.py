@@ -87,4 +87,5 @@ def _counts(graph: dict) -> str:
             f" Optimiser: {graph.get('update_s', 0.0):.2f} s incremental (ISAM2), {graph.get('optimisations', 0)} whole-graph"
             f" optimisations {graph.get('optimise_s', 0.0):.2f} s; search {graph.get('search_s', 0.0):.2f} s;"
             + (f" screen {graph['screened']} coarse searches {graph.get('screen_s', 0.0):.2f} s;" if graph.get("screened") else "")
-            + f" largest correction {graph.get('largest_correction_m', 0.0):.2f} m; online map redrawn {graph.get('redraws', 0)} times.")
+            + f" largest correction {graph.get('largest_correction_m', 0.0):.2f} m; online map redrawn {graph.get('redraws', 0)} times."
+            + (f" Every scan matched once more on the optimised nodes' map: {graph['final_match_s']:.2f} s." if graph.get("final_match_s") else ""))

@@ -16,8 +16,10 @@ Per processed step k (the same steps as the particle filters, `steps.*`):
    (`_try_group`); closures the optimum leaves far off are dropped;
 5. when the graph puts node k `redraw_m` / `redraw_rad` away from the online map, that map is
    drawn again from the graph; the online (causal) pose of step k is local SLAM's.
-At the end the graph is optimised once more: its estimate is the smoothed trajectory, and the
-final map is drawn by ray casting every node's scan from its optimised pose.
+At the end the graph is optimised once more: its estimate places the nodes, and (with
+`filter.final_match`) every scan is matched once more on a map of the nodes' scans at those
+poses (`final_match`): that is the smoothed trajectory. The final map is drawn by ray casting
+every node's scan from its smoothed pose.
 
 How far a submap can be from where the estimate puts it grows with the path travelled
 between the node and the submap since they were last tied together: the shorter of the path
@@ -39,6 +41,7 @@ from slamlab.frames import Sequence
 from slamlab.geometry import FloatArray, se2_between, se2_compose
 from slamlab.io.table import Table
 from slamlab.slam.graph import GraphFilter
+from slamlab.slam.graph.final_match import match_on_final_map
 from slamlab.slam.graph.local import LocalSlam
 from slamlab.slam.graph.particles import ParticleTracker
 from slamlab.slam.graph.loops import ACCEPTED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings, WindowPolicy
@@ -193,6 +196,12 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
     trajectory = fill_between_steps(step_scans, smooth, odom, between)
     map_mb = tracker.memory_mb()
     tracker.drop_online_map()
+    if s.final_match:  # every scan matched once more on the map of the optimised nodes (`final_match`)
+        t1 = time.perf_counter()
+        trajectory = match_on_final_map(trajectory, step_scans, points, project, matcher, ms, s.wall_at == "hits")
+        final_match_s = time.perf_counter() - t1
+    else:
+        final_match_s = 0.0
     final_map = map_from_trajectory(sequence, trajectory, ms, scan_indices=step_scans)  # every node's scan at its optimised pose
     steps = Table({
         "step": np.arange(n_steps),
@@ -242,6 +251,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
                 "redraws": int(tracker.redraws),
                 "largest_correction_m": float(max([o.moved_max_m for o in graph.optimisations if not o.taken_back], default=0.0)),
                 "final_optimise_s": final_s,
+                "final_match_s": final_match_s,
                 "search_s": float(search.seconds),
                 "screened": int(search.screened),
                 "screen_s": float(search.screen_seconds),

@@ -1,0 +1,62 @@
+"""The smoothed trajectory's last pass: every scan matched once more on the finished map.
+
+    match_on_final_map(scans, trajectory, node_scans, project, matcher, settings) -> trajectory
+
+The graph places its nodes; a scan between two nodes takes its node's pose (+) the motion
+matched on the online map of that moment, which was drawn at the online poses, before any
+loop closure straightened it. Once the graph is optimised, a map drawn from every node's
+scan at its optimised pose is the best map the run has: each scan (nodes included) is
+matched on it once, from its smoothed pose and with the matcher's motion prior around that
+pose. The causal (online) trajectory is not touched: this pass uses the whole log.
+
+Measured (2026-11-30, `lidar2d`, smoothed relation error, before -> after): ACES 0.0373 ->
+0.0357 m at 0.5 m steps, 0.0368 -> 0.0353 at 0.25, 0.0373 -> 0.0358 at 0.52; Intel 0.0185 ->
+0.0180, 0.0189 -> 0.0189, 0.0203 -> 0.0185. Matching only the nodes (the scans between
+keeping their offsets) was worse (ACES 0.0381, Intel 0.0197); a second pass on a map drawn
+from the refined nodes gave nothing more (ACES 0.0358, Intel 0.0190).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence as SequenceABC
+
+import numpy as np
+
+from slamlab.geometry import FloatArray
+from slamlab.slam.grid import MapSettings, OccupancyGrid
+from slamlab.slam.matcher import LikelihoodFieldMatcher
+from slamlab.slam.scan import ScanBatch, ScanPoints, points_to_world
+
+CHUNK_SCANS = 2048  # scans projected and matched per kernel call: ~6 MB of points on a 360-beam log
+
+
+def final_map(node_points: SequenceABC[ScanPoints], node_poses: FloatArray, matcher: LikelihoodFieldMatcher,
+              settings: MapSettings, walls_at_hits: bool = False) -> OccupancyGrid:
+    """The map (with its likelihood field) of the nodes' scans at `node_poses` (K, 3), drawn
+    as local SLAM draws its online map: the points the matcher matches, ray-cast in order, the
+    walls at their cells' centres or (`walls_at_hits`, `filter.wall_at=hits`) at their hits."""
+    grid = OccupancyGrid(settings, (float(node_poses[0, 0]), float(node_poses[0, 1])), matcher.field_sigma_m, matcher.field_radius_m,
+                         walls_at_hits)
+    sensors = np.array([points_to_world(p.origin.reshape(1, 2), pose)[0] for p, pose in zip(node_points, node_poses)])
+    walls = [points_to_world(matcher.fine_points(p) if len(p.xy) else p.xy, pose) for p, pose in zip(node_points, node_poses)]
+    grid.insert_many(sensors, walls)
+    return grid
+
+
+def match_on_final_map(trajectory: FloatArray, node_scans: np.ndarray, points: Callable[[int], ScanPoints],
+                       project: Callable[[int, int], ScanBatch], matcher: LikelihoodFieldMatcher, settings: MapSettings,
+                       walls_at_hits: bool = False) -> FloatArray:
+    """`trajectory` (N, 3: every scan's smoothed pose) with each scan that has points moved to
+    where it matches best on the map of the nodes `node_scans` (scan indices) at their poses
+    there (`final_map`, with `walls_at_hits`); `points(i)` gives scan i's points, `project(a, b)` scans a..b-1 as a
+    batch. Scans without points keep their pose. Returns a new array."""
+    node_scans = np.asarray(node_scans, dtype=np.int64)
+    grid = final_map([points(int(i)) for i in node_scans], trajectory[node_scans], matcher, settings, walls_at_hits)
+    out = np.array(trajectory, dtype=np.float64, copy=True)
+    for a in range(0, len(out), CHUNK_SCANS):
+        b = min(a + CHUNK_SCANS, len(out))
+        batch = project(a, b)
+        has = np.flatnonzero(batch.counts > 0) + a
+        if len(has):
+            out[has] = matcher.match_scans_on(grid, trajectory[has], batch.nonempty())[0]
+    return out
