@@ -682,6 +682,18 @@ def test_the_final_match_puts_scans_back_where_they_fit_the_map_of_the_nodes(mon
     assert final_match.match_on_final_map(truth + off, nodes, points, project, matcher, MapSettings(resolution_m=0.05)).tobytes() == out.tobytes()
 
 
+def test_the_final_match_runs_where_the_scans_between_steps_are_matched_and_nowhere_else():
+    from test_slam_engine import _room_sequence
+
+    seq = _room_sequence()
+    room = ("filter=graph", "matcher=likelihood", "steps.min_distance_m=0.1")
+    on, off = (run_slam(seq, build_components(_cfg(*room, f"filter.final_match={v}", "steps.between=odometry"))) for v in ("true", "false"))
+    assert on.trajectory.tobytes() == off.trajectory.tobytes() and on.extras["graph"]["final_match_s"] == 0
+    on, off = (run_slam(seq, build_components(_cfg(*room, f"filter.final_match={v}", "steps.between=match"))) for v in ("true", "false"))
+    assert on.extras["graph"]["final_match_s"] > 0 and on.trajectory.tobytes() != off.trajectory.tobytes()
+    assert on.causal.tobytes() == off.causal.tobytes()
+
+
 @pytest.mark.slow
 def test_the_final_match_changes_the_smoothed_path_only_and_brings_it_closer(loop_log, graph_run):
     """`filter.final_match` (on in the preset) leaves the online path to the byte; on the simulated

@@ -17,8 +17,9 @@ Per processed step k (the same steps as the particle filters, `steps.*`):
 5. when the graph puts node k `redraw_m` / `redraw_rad` away from the online map, that map is
    drawn again from the graph; the online (causal) pose of step k is local SLAM's.
 At the end the graph is optimised once more: its estimate places the nodes, and (with
-`filter.final_match`) every scan is matched once more on a map of the nodes' scans at those
-poses (`final_match`): that is the smoothed trajectory. The final map is drawn by ray casting
+`filter.final_match`, when the scans between steps were matched: `steps.between=match`)
+every scan is matched once more on a map of the nodes' scans at those poses (`final_match`):
+that is the smoothed trajectory. The final map is drawn by ray casting
 every node's scan from its smoothed pose.
 
 How far a submap can be from where the estimate puts it grows with the path travelled
@@ -196,7 +197,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
     trajectory = fill_between_steps(step_scans, smooth, odom, between)
     map_mb = tracker.memory_mb()
     tracker.drop_online_map()
-    if s.final_match:  # every scan matched once more on the map of the optimised nodes (`final_match`)
+    if s.final_match and between is not None:  # every scan matched once more on the map of the optimised nodes (`final_match`)
         t1 = time.perf_counter()
         trajectory = match_on_final_map(trajectory, step_scans, points, project, matcher, ms, s.wall_at == "hits")
         final_match_s = time.perf_counter() - t1
