@@ -32,7 +32,7 @@ from slamlab.slam.grid import MapSettings, OccupancyGrid
 from slamlab.slam.matcher import LikelihoodFieldMatcher
 from slamlab.slam.scan import ScanBatch, ScanPoints, points_to_world
 
-CHUNK_SCANS = 2048  # scans projected and matched per kernel call: ~6 MB of points on a 360-beam log
+CHUNK_SCANS = 512  # scans projected and matched per kernel call: ~3 MB of points on a 361-beam log (and the matcher's copies)
 
 
 def final_map(node_points: SequenceABC[ScanPoints], node_poses: FloatArray, matcher: LikelihoodFieldMatcher,
