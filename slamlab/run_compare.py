@@ -29,7 +29,8 @@ RETIRED_TWINS = frozenset({"steps.parquet"})
 # Metrics (and step columns) that measure the machine or the implementation, not the
 # algorithm's results: timings, memory, and the matcher's map reads (a faster kernel doing
 # the same search reads fewer cells and finds the same poses).
-VOLATILE = re.compile(r"(runtime|_per_s$|realtime|memory|(^|_)ms(_|$)|time_s$|map_reads$)")
+# The graph filter's seconds per part (`graph.search_s`, ..., steps.csv's `optimise_s`) are timings too.
+VOLATILE = re.compile(r"(runtime|_per_s$|realtime|memory|(^|_)ms(_|$)|time_s$|map_reads$|(^|_)(optimise|update|search|screen|match)_s$)")
 TEXT_SUFFIXES = (".tum", ".yaml", ".txt")
 IMAGE_SUFFIXES = (".png", ".pgm")
 

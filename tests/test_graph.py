@@ -651,9 +651,10 @@ def _lidar_points(walls, pose, n_beams: int = 360, max_r: float = 30.0) -> np.nd
 
 
 def test_the_final_match_puts_scans_back_where_they_fit_the_map_of_the_nodes(monkeypatch):
-    """Six scans of an L-shaped room with a pillar: the nodes (0, 2, 4) at their true poses draw
-    the map; scans 1 and 3, placed 3-4 cm and ~0.6 degrees off, are matched back to within
-    5 mm and 0.1 degrees of where they were taken; scan 5 has no points and keeps its pose. Each
+    """Scans of an L-shaped room with a pillar: the nodes (1, 3, 5) at their true poses draw the
+    map; scans 2 and 4, placed 3-4 cm and ~0.6 degrees off, are matched back to within 5 mm and
+    0.1 degrees of where they were taken; scan 6 has no points and keeps its pose, and so do the
+    first node and scan 0 before it, even placed off (the start fixes the map's frame). Each
     scan's result is its own: any chunking of the scans gives the same bytes."""
     from slamlab.slam.graph import final_match
     from slamlab.slam.grid import MapSettings
@@ -662,22 +663,23 @@ def test_the_final_match_puts_scans_back_where_they_fit_the_map_of_the_nodes(mon
     room = [(-6, -4, 6, -4), (6, -4, 6, 1), (6, 1, 2, 1), (2, 1, 2, 4), (2, 4, -6, 4), (-6, 4, -6, -4),
             (-2, 0, -1, 0), (-1, 0, -1, 1), (-1, 1, -2, 1), (-2, 1, -2, 0), (4, -4, 4, -3), (-6, 2, -5, 2)]
     room = [tuple(v + 0.025 for v in w) for w in room]  # walls on cell centres, where the map draws them (5 cm cells)
-    truth = np.array([(-3.0, -1.0, 0.3), (-2.6, -1.2, 0.35), (-2.0, -1.5, 0.4), (-1.5, -1.8, 0.5), (-1.0, -2.0, 0.5), (-0.6, -2.0, 0.55)])
+    truth = np.array([(-3.0, -1.0, 0.3), (-3.0, -1.0, 0.3), (-2.6, -1.2, 0.35), (-2.0, -1.5, 0.4), (-1.5, -1.8, 0.5), (-1.0, -2.0, 0.5),
+                      (-0.6, -2.0, 0.55)])
     off = np.zeros_like(truth)
-    off[1], off[3] = (0.03, -0.02, 0.01), (-0.02, 0.03, -0.01)
+    off[0], off[2], off[4] = (0.02, 0.01, 0.005), (0.03, -0.02, 0.01), (-0.02, 0.03, -0.01)
 
     def points(i: int) -> ScanPoints:
-        return ScanPoints(np.zeros((0, 2)) if i == 5 else _lidar_points(room, truth[i]), np.zeros(2))
+        return ScanPoints(np.zeros((0, 2)) if i == 6 else _lidar_points(room, truth[i]), np.zeros(2))
 
     def project(a: int, b: int) -> ScanBatch:
         return ScanBatch.of([points(i) for i in range(a, b)])
 
     matcher = build_components(_cfg(*GRAPH)).matcher
-    nodes = np.array([0, 2, 4])
+    nodes = np.array([1, 3, 5])
     out = final_match.match_on_final_map(truth + off, nodes, points, project, matcher, MapSettings(resolution_m=0.05))
     d = out - truth
-    assert np.hypot(d[[1, 3], 0], d[[1, 3], 1]).max() < 0.005 and np.degrees(np.abs(d[[1, 3], 2])).max() < 0.1
-    assert np.array_equal(out[5], (truth + off)[5])
+    assert np.hypot(d[[2, 4], 0], d[[2, 4], 1]).max() < 0.005 and np.degrees(np.abs(d[[2, 4], 2])).max() < 0.1
+    assert np.array_equal(out[[0, 1, 6]], (truth + off)[[0, 1, 6]])
     monkeypatch.setattr(final_match, "CHUNK_SCANS", 2)
     assert final_match.match_on_final_map(truth + off, nodes, points, project, matcher, MapSettings(resolution_m=0.05)).tobytes() == out.tobytes()
 

@@ -179,3 +179,18 @@ def test_preset_accepts_a_faithful_grading_run(sim_cache, tmp_path):
         f"run made with: preset grading; overrides: dataset.cache_dir={sim_cache / 'sim'} progress=off",
         f"IDENTICAL: {run} (the grading preset, every result file; timing and memory figures excepted)",
     ]
+
+
+def test_metrics_differ_by_graph_timings_only_are_the_same_results():
+    """The graph filter's seconds per part (and steps.csv's `optimise_s`) are timings, like
+    `runtime_s`; its counts are results."""
+    from slamlab.run_compare import VOLATILE, first_metric_difference
+
+    a = {"runtime_s": 1.0, "graph": {"accepted": 3, "search_s": 1.0, "screen_s": 0.1, "update_s": 0.2, "optimise_s": 0.3,
+                                     "final_optimise_s": 0.4, "final_match_s": 0.5}, "relations": {"loop_min_dt_s": 30.0}}
+    b = {"runtime_s": 2.0, "graph": {"accepted": 3, "search_s": 2.0, "screen_s": 0.2, "update_s": 0.3, "optimise_s": 0.4,
+                                     "final_optimise_s": 0.5, "final_match_s": 0.6}, "relations": {"loop_min_dt_s": 30.0}}
+    assert first_metric_difference(a, b) is None
+    assert "graph.accepted" in first_metric_difference(a, {**b, "graph": {**b["graph"], "accepted": 4}})
+    assert "loop_min_dt_s" in first_metric_difference(a, {**b, "relations": {"loop_min_dt_s": 20.0}})
+    assert VOLATILE.search("optimise_s") and not VOLATILE.search("duration_s")

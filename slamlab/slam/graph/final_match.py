@@ -1,15 +1,17 @@
 """The smoothed trajectory's last pass: every scan matched once more on the finished map.
 
-    match_on_final_map(scans, trajectory, node_scans, project, matcher, settings) -> trajectory
+    match_on_final_map(trajectory, node_scans, points, project, matcher, settings, walls_at_hits) -> trajectory
 
 The graph places its nodes; a scan between two nodes takes its node's pose (+) the motion
 matched on the online map of that moment, which was drawn at the online poses, before any
 loop closure straightened it. Once the graph is optimised, a map drawn from every node's
 scan at its optimised pose is the best map the run has: each scan (nodes included) is
 matched on it once, from its smoothed pose and with the matcher's motion prior around that
-pose. The causal (online) trajectory is not touched: this pass uses the whole log. It runs
-when the run matched the scans between its nodes (`steps.between=match`, the `lidar2d`
-preset); with `steps.between=odometry` the run leaves them to odometry, and matching the
+pose. The first node keeps its pose (the start, which fixes the map's frame), and so do the
+scans before it (the robot standing at the start: they follow it by odometry, as
+`steps.fill_between_steps` places them). The causal (online) trajectory is not touched: this
+pass uses the whole log. It runs when the run matched the scans between its nodes
+(`steps.between=match`, the `lidar2d` preset); with `steps.between=odometry` the run leaves them to odometry, and matching the
 nodes alone measured worse (below).
 
 Measured (2026-11-30, `lidar2d`, smoothed relation error, before -> after): ACES 0.0373 ->
@@ -51,14 +53,15 @@ def final_map(node_points: SequenceABC[ScanPoints], node_poses: FloatArray, matc
 def match_on_final_map(trajectory: FloatArray, node_scans: np.ndarray, points: Callable[[int], ScanPoints],
                        project: Callable[[int, int], ScanBatch], matcher: LikelihoodFieldMatcher, settings: MapSettings,
                        walls_at_hits: bool = False) -> FloatArray:
-    """`trajectory` (N, 3: every scan's smoothed pose) with each scan that has points moved to
-    where it matches best on the map of the nodes `node_scans` (scan indices) at their poses
-    there (`final_map`, with `walls_at_hits`); `points(i)` gives scan i's points, `project(a, b)` scans a..b-1 as a
-    batch. Scans without points keep their pose. Returns a new array."""
+    """`trajectory` (N, 3: every scan's smoothed pose) with each scan after the first node that
+    has points moved to where it matches best on the map of the nodes `node_scans` (increasing
+    scan indices) at their poses there (`final_map`, with `walls_at_hits`); `points(i)` gives
+    scan i's points, `project(a, b)` scans a..b-1 as a batch. The first node, the scans before
+    it and scans without points keep their pose. Returns a new array."""
     node_scans = np.asarray(node_scans, dtype=np.int64)
     grid = final_map([points(int(i)) for i in node_scans], trajectory[node_scans], matcher, settings, walls_at_hits)
     out = np.array(trajectory, dtype=np.float64, copy=True)
-    for a in range(0, len(out), CHUNK_SCANS):
+    for a in range(int(node_scans[0]) + 1, len(out), CHUNK_SCANS):
         b = min(a + CHUNK_SCANS, len(out))
         batch = project(a, b)
         has = np.flatnonzero(batch.counts > 0) + a

@@ -190,7 +190,6 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
     verifier.flush()
     graph.update()
     final_s = _optimise(graph, by_loop, s.prune_m, s.prune_rad) if graph.loops else 0.0
-    runtime = time.perf_counter() - t_loop
     smooth = graph.poses.copy()
     if between is not None:
         between = between[: len(odom)]
@@ -203,7 +202,8 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
         final_match_s = time.perf_counter() - t1
     else:
         final_match_s = 0.0
-    final_map = map_from_trajectory(sequence, trajectory, ms, scan_indices=step_scans)  # every node's scan at its optimised pose
+    runtime = time.perf_counter() - t_loop  # the filter's work: every step, the last optimisation and the final match
+    final_map = map_from_trajectory(sequence, trajectory, ms, scan_indices=step_scans)  # every node's scan at its smoothed pose
     steps = Table({
         "step": np.arange(n_steps),
         "scan_index": np.array([scans[i].index for i in step_scans], dtype=np.int64),
