@@ -11,8 +11,8 @@ pose. The first node keeps its pose (the start, which fixes the map's frame), an
 scans before it (the robot standing at the start: they follow it by odometry, as
 `steps.fill_between_steps` places them). The causal (online) trajectory is not touched: this
 pass uses the whole log. It runs when the run matched the scans between its nodes
-(`steps.between=match`, the `lidar2d` preset); with `steps.between=odometry` the run leaves them to odometry, and matching the
-nodes alone measured worse (below).
+(`steps.between=match`, the `lidar2d` preset); with `steps.between=odometry` the run leaves
+them to odometry, and matching the nodes alone measured worse (below).
 
 Measured (2026-11-30, `lidar2d`, smoothed relation error, before -> after): ACES 0.0373 ->
 0.0357 m at 0.5 m steps, 0.0368 -> 0.0353 at 0.25, 0.0373 -> 0.0358 at 0.52; Intel 0.0185 ->
@@ -25,29 +25,17 @@ nodes gave nothing more (ACES 0.0358, Intel 0.0190).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence as SequenceABC
+from collections.abc import Callable
 
 import numpy as np
 
 from slamlab.geometry import FloatArray
-from slamlab.slam.grid import MapSettings, OccupancyGrid
+from slamlab.slam.graph.local import map_of_nodes
+from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import LikelihoodFieldMatcher
-from slamlab.slam.scan import ScanBatch, ScanPoints, points_to_world
+from slamlab.slam.scan import ScanBatch, ScanPoints
 
 CHUNK_SCANS = 512  # scans projected and matched per kernel call: ~3 MB of points on a 361-beam log (and the matcher's copies)
-
-
-def final_map(node_points: SequenceABC[ScanPoints], node_poses: FloatArray, matcher: LikelihoodFieldMatcher,
-              settings: MapSettings, walls_at_hits: bool = False) -> OccupancyGrid:
-    """The map (with its likelihood field) of the nodes' scans at `node_poses` (K, 3), drawn
-    as local SLAM draws its online map: the points the matcher matches, ray-cast in order, the
-    walls at their cells' centres or (`walls_at_hits`, `filter.wall_at=hits`) at their hits."""
-    grid = OccupancyGrid(settings, (float(node_poses[0, 0]), float(node_poses[0, 1])), matcher.field_sigma_m, matcher.field_radius_m,
-                         walls_at_hits)
-    sensors = np.array([points_to_world(p.origin.reshape(1, 2), pose)[0] for p, pose in zip(node_points, node_poses)])
-    walls = [points_to_world(matcher.fine_points(p) if len(p.xy) else p.xy, pose) for p, pose in zip(node_points, node_poses)]
-    grid.insert_many(sensors, walls)
-    return grid
 
 
 def match_on_final_map(trajectory: FloatArray, node_scans: np.ndarray, points: Callable[[int], ScanPoints],
@@ -55,11 +43,11 @@ def match_on_final_map(trajectory: FloatArray, node_scans: np.ndarray, points: C
                        walls_at_hits: bool = False) -> FloatArray:
     """`trajectory` (N, 3: every scan's smoothed pose) with each scan after the first node that
     has points moved to where it matches best on the map of the nodes `node_scans` (increasing
-    scan indices) at their poses there (`final_map`, with `walls_at_hits`); `points(i)` gives
+    scan indices) at their poses there (`local.map_of_nodes`, with `walls_at_hits`); `points(i)` gives
     scan i's points, `project(a, b)` scans a..b-1 as a batch. The first node, the scans before
     it and scans without points keep their pose. Returns a new array."""
     node_scans = np.asarray(node_scans, dtype=np.int64)
-    grid = final_map([points(int(i)) for i in node_scans], trajectory[node_scans], matcher, settings, walls_at_hits)
+    grid = map_of_nodes([points(int(i)) for i in node_scans], trajectory[node_scans], matcher, settings, walls_at_hits)
     out = np.array(trajectory, dtype=np.float64, copy=True)
     for a in range(int(node_scans[0]) + 1, len(out), CHUNK_SCANS):
         b = min(a + CHUNK_SCANS, len(out))

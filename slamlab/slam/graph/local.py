@@ -33,6 +33,18 @@ from slamlab.slam.odometry_scale import learn_scales, scaled_start
 from slamlab.slam.scan import ScanBatch, ScanPoints, place, points_to_world
 
 
+def map_of_nodes(scans: SequenceABC[ScanPoints], poses: FloatArray, matcher: LikelihoodFieldMatcher, settings: MapSettings,
+                 walls_at_hits: bool = False) -> OccupancyGrid:
+    """The map (with its likelihood field) of nodes' scans at `poses` (K, 3), drawn as the
+    online map is: the points the matcher matches, ray-cast in order, walls at their cells'
+    centres or (`walls_at_hits`, `filter.wall_at=hits`) at their hits. The online map's redraw
+    and the final match's map (`final_match`)."""
+    grid = OccupancyGrid(settings, (float(poses[0, 0]), float(poses[0, 1])), matcher.field_sigma_m, matcher.field_radius_m, walls_at_hits)
+    sensors = np.array([points_to_world(pts.origin.reshape(1, 2), pose)[0] for pts, pose in zip(scans, poses)])
+    grid.insert_many(sensors, [points_to_world(matcher.fine_points(pts) if len(pts.xy) else pts.xy, pose) for pts, pose in zip(scans, poses)])
+    return grid
+
+
 class LocalSlam:
     """The chain poses, the submaps and (local_map=map) the online map (see module doc)."""
 
@@ -160,10 +172,7 @@ class LocalSlam:
         assert self.grid is not None, "local_map=submap keeps no online map"
         self.redraws += 1
         self.grid = None  # let the old map go first: on a building the size of the hospital log it is ~300 MB
-        grid = self._new_grid((float(poses[0, 0]), float(poses[0, 1])))
-        sensors = np.array([points_to_world(pts.origin.reshape(1, 2), pose)[0] for pts, pose in zip(scans, poses)])
-        grid.insert_many(sensors, [points_to_world(self.matcher.fine_points(pts) if len(pts.xy) else pts.xy, pose) for pts, pose in zip(scans, poses)])
-        self.grid = grid
+        self.grid = map_of_nodes(scans, poses, self.matcher, self.settings, self.walls_at_hits)
         self.online = np.asarray(poses[-1], dtype=np.float64).copy()
 
     def drop_online_map(self) -> None:
