@@ -8,6 +8,7 @@ where local SLAM alone ends up metres off and only loop closures keep the map to
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import importlib.util
 import math
 from pathlib import Path
@@ -221,7 +222,7 @@ def _closure(node: int, anchor: int, poses: np.ndarray, error=(0.0, 0.0, 0.0)) -
 
 def test_closures_that_agree_form_a_clique_and_a_wrong_one_stays_out():
     poses = np.column_stack([np.arange(100) * 0.5, np.zeros(100), np.zeros(100)])
-    s = VerifySettings(0.1, 0.02, 30.0, 3, 8.0, 20.0, 0.3, 0.02, 0.05, 0.002)
+    s = VerifySettings(0.1, 0.02, 30.0, 3, 8.0, 20.0, 0.3, 0.02, 0.05, 0.002, group_submaps=1)
     path = np.arange(100) * 0.5
     good = [_closure(n, a, poses) for n, a in ((80, 10), (84, 12), (90, 14), (95, 20))]
     wrong = _closure(88, 13, poses, (2.0, 0.0, math.radians(20)))
@@ -236,7 +237,7 @@ def test_corridor_matches_enter_as_their_own_group_when_too_few_full_matches_bac
     # enter alone (they ask only for what they pin), the full ones wait for a third
     poses = np.column_stack([np.arange(100) * 0.5, np.zeros(100), np.zeros(100)])
     path = np.arange(100) * 0.5
-    s = VerifySettings(0.1, 0.02, 30.0, 3, 2.0, 20.0, 0.3, 0.02, 0.05, 0.002)
+    s = VerifySettings(0.1, 0.02, 30.0, 3, 2.0, 20.0, 0.3, 0.02, 0.05, 0.002, group_submaps=1)  # every match in one submap
     def cands(full_nodes):
         out = [_closure(n, 10, poses, (0.0, 0.5, 0.0)) for n in full_nodes]
         for n in (86, 90, 94):
@@ -251,6 +252,24 @@ def test_corridor_matches_enter_as_their_own_group_when_too_few_full_matches_bac
     three = cands((78, 80, 84))
     entered = ClosureVerifier(s).offer(three, 94, poses, path)
     assert sorted(c.node for c in entered) == [78, 80, 84, 86, 90, 94]
+
+
+def test_a_group_enters_once_its_matches_are_in_two_submaps():
+    # four scans in a row matched in one old submap, each asking the same 3 m move along the corridor (x): one
+    # submap seen a period off agrees with itself, so they wait. A match in another submap that agrees lets them in
+    poses = np.column_stack([np.arange(100) * 0.5, np.zeros(100), np.zeros(100)])
+    path = np.arange(100) * 0.5
+    s = VerifySettings(0.1, 0.02, 30.0, 3, 2.0, 20.0, 0.3, 0.02, 0.05, 0.002, group_submaps=2)
+    one_submap = [_closure(n, 10, poses, (3.0, 0.0, 0.0)) for n in (80, 82, 84, 86)]
+    verifier = ClosureVerifier(s)
+    assert verifier.offer(one_submap, 86, poses, path) == []
+    assert all(c.status == PENDING for c in one_submap)
+    other = _closure(88, 30, poses, (3.0, 0.0, 0.0))
+    other.submap = 1
+    entered = verifier.offer([other], 88, poses, path)
+    assert sorted(c.node for c in entered) == [80, 82, 84, 86, 88] and all(c.in_group for c in entered)
+    again = [_closure(n, 10, poses, (3.0, 0.0, 0.0)) for n in (80, 82, 84, 86)]
+    assert len(ClosureVerifier(dataclasses.replace(s, group_submaps=1)).offer(again, 86, poses, path)) == 4
 
 
 def test_a_closure_ties_two_far_places_of_the_path_together():

@@ -397,6 +397,11 @@ class GraphFilterConfig:
     # and sim_loops 2.0 unchanged, sim_loops 1.5 worst 0.268 -> 0.226 m: bench_graph.py). Each search already matches the
     # last `query_m` of scans together, so three nodes 2 m apart are three views of that much of the building
     group_span_m: float = 20.0  # candidates wait this far (m of travel) for their group
+    group_submaps: int = 2  # ... and a group's closures are matches in at least this many submaps: scans in a row matched
+    # in one old submap are not independent. Where that submap saw the robot's true place only at its far edge, a place a
+    # period along the corridor fits each of them better and they agree (corridor probe 3x, world 4: four closures in one
+    # submap moved the robot 27 m along a corridor, the online path 20.7 m off for 190 s until a later group took it back;
+    # 1 until 2026-11-30, see benchmarks/RESULTS.md)
     consistency_m: float = 0.3  # pairwise cycle error allowed (m) ...
     consistency_per_m: float = 0.02  # ... plus this per metre of the cycle's path
     consistency_rad: float = 0.05  # pairwise cycle error allowed in yaw (rad) ...
@@ -424,7 +429,7 @@ class GraphFilterConfig:
 
     def __post_init__(self) -> None:
         g = self.GROUP
-        for name in ("submap_nodes", "search_levels", "search_every", "wide_every", "max_submaps_per_node", "group_size", "screen_keep", "screen_points"):
+        for name in ("submap_nodes", "search_levels", "search_every", "wide_every", "max_submaps_per_node", "group_size", "group_submaps", "screen_keep", "screen_points"):
             require_int(g, name, getattr(self, name), 2 if name in ("submap_nodes",) else 1)
         if self.search_levels > 12:
             raise ConfigError(f"{g}.search_levels", f"must be at most 12, got {self.search_levels!r}")

@@ -101,7 +101,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
                         sigma_m=s.loop_sigma_m, sigma_rad=s.loop_sigma_rad)
     policy = WindowPolicy(s.window_m, s.window_per_m, s.window_max_m, s.window_yaw_rad, s.window_yaw_per_m)
     verifier = ClosureVerifier(VerifySettings(s.trust_m, s.trust_rad, s.loop_min_path_m, s.group_size, s.group_extent_m, s.group_span_m, s.consistency_m,
-                                              s.consistency_per_m, s.consistency_rad, s.consistency_rad_per_m))
+                                              s.consistency_per_m, s.consistency_rad, s.consistency_rad_per_m, group_submaps=s.group_submaps))
     causal = np.empty((n_steps, 3))
     path_m = np.zeros(n_steps)  # path length (m) of the local trajectory at each node
     candidates: list[LoopCandidate] = []

@@ -15,10 +15,13 @@ to end. Two tests decide, besides the ambiguity test of the search itself:
   cycle's path allows (`consistency_matrix`; Mangelson et al. 2018, "Pairwise consistent
   measurement set maximization").
   The largest set of mutually consistent candidates (a maximum clique of that relation) enters
-  once it holds `group_size` different nodes spread over `group_extent_m` of the path: wrong
-  matches of different scans mostly disagree with each other, and where they agree (a
-  corridor whose doors repeat, matched a few doors off by several scans in a row) they stop
-  agreeing once the robot has moved on far enough to see something else.
+  once it holds `group_size` different nodes spread over `group_extent_m` of the path, matched
+  in at least `group_submaps` different submaps: wrong matches of different scans mostly
+  disagree with each other, and where they agree (a corridor whose doors repeat, matched a few
+  doors off by several scans in a row) they stop agreeing once the robot has moved on far
+  enough to see something else. Matches of consecutive scans in one old submap are not
+  independent: where that submap saw the robot's true place only at its far edge, a place a
+  period along the corridor fits every one of them better, and they agree.
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ class VerifySettings:
     consistency_per_m: float
     consistency_rad: float
     consistency_rad_per_m: float
+    group_submaps: int  # a group's closures are matches in at least this many submaps (see module doc)
 
 
 CHI2_3 = 11.34  # chi-square, 3 degrees of freedom, 99 %: the gate of every test here
@@ -253,7 +257,8 @@ class ClosureVerifier:
 
 def _enough(group: list[LoopCandidate], path_m: FloatArray, s: VerifySettings) -> bool:
     """Whether `group` has closures from at least `group_size` nodes spread over at least
-    `group_extent_m` of path."""
+    `group_extent_m` of path, into at least `group_submaps` submaps."""
     if not group:
         return False
-    return len({c.node for c in group}) >= s.group_size and float(np.ptp([path_m[c.node] for c in group])) >= s.group_extent_m
+    return (len({c.node for c in group}) >= s.group_size and float(np.ptp([path_m[c.node] for c in group])) >= s.group_extent_m
+            and len({c.submap for c in group}) >= s.group_submaps)
