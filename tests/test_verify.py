@@ -15,7 +15,7 @@ import yaml
 from PIL import Image
 
 from cli_helpers import slamlab_cli, verify_cli
-from slamlab.run_compare import compare_runs
+from slamlab.run_compare import VOLATILE, compare_runs, first_metric_difference
 
 pytestmark = pytest.mark.slow  # runs and re-runs the pipeline through the CLI
 
@@ -184,8 +184,6 @@ def test_preset_accepts_a_faithful_grading_run(sim_cache, tmp_path):
 def test_metrics_differ_by_graph_timings_only_are_the_same_results():
     """The graph filter's seconds per part (and steps.csv's `optimise_s`) are timings, like
     `runtime_s`; its counts are results."""
-    from slamlab.run_compare import VOLATILE, first_metric_difference
-
     a = {"runtime_s": 1.0, "graph": {"accepted": 3, "search_s": 1.0, "screen_s": 0.1, "update_s": 0.2, "optimise_s": 0.3,
                                      "final_optimise_s": 0.4, "final_match_s": 0.5}, "relations": {"loop_min_dt_s": 30.0}}
     b = {"runtime_s": 2.0, "graph": {"accepted": 3, "search_s": 2.0, "screen_s": 0.2, "update_s": 0.3, "optimise_s": 0.4,
