@@ -13,11 +13,15 @@ steps, mounted at the robot centre as in Intel), and drifting wheel odometry (+2
 log go Kuemmerle-style relations from the ground truth: one every 1 s to a scan 1-2 s later,
 then, after a `#` comment line, up to `--loop-relations` between places revisited more than
 60 s apart (true positions within 1.5 m), which measure loop closure; and the true poses of
-the scans (`<stem>_truth.tum`).
+the scans (`<stem>_truth.tum`). `--lidar` swaps the SICK for another kind of 2D lidar users
+bring (`LIDARS`: a 270-degree 30 m Hokuyo, a 240-degree 5.6 m one, a 360-degree 12 m one),
+written as ROBOTLASER1 records with their own geometry: short range and a different field of
+view are what a log we do not have is most likely to differ in.
 
     .venv/bin/python benchmarks/sim_carmen.py --scale 2.0 --world-seed 0 [--out /tmp/simcarmen]
     .venv/bin/python benchmarks/sim_carmen.py --scale 2.0 --world-seed 0 --run --filter-seeds 0,1,2 [OVERRIDE ...]
     .venv/bin/python benchmarks/sim_carmen.py --world-seeds 0,1,2,3 --run [OVERRIDE ...]   # one table, 4 worlds
+    .venv/bin/python benchmarks/sim_carmen.py --lidar urg --world-seeds 0,1 --run          # a 5.6 m lidar
 
 `--run` runs `slamlab +experiment=lidar2d` on the log once per filter seed (two at a time,
 NUMBA_NUM_THREADS=1, each in a new folder under OUT/runs/) and prints a table: relation error
@@ -61,11 +65,34 @@ T0 = 1_100_000_000.0  # ipc_timestamp of the first record (s, epoch)
 LIDAR_HZ = 10.0
 ODOM_HZ = 20.0
 LIDAR_Z_M = 0.35  # lidar plane above the floor (Pioneer + SICK)
-N_BEAMS = 180
-BEAM_ANGLES = np.deg2rad(np.arange(N_BEAMS) - 90.0)  # -90..+89 deg, 1 deg steps (FLASER n = 180)
-LIDAR_MAX_M = 30.0
-NO_RETURN_M = 81.9  # what the SICK reports for nothing within range
 RANGE_SIGMA_M = 0.01
+
+
+@dataclass(frozen=True)
+class Lidar:
+    """A 2D lidar as the log describes it: `n` beams from `first_deg` in `step_deg` steps
+    (degrees, counter-clockwise from the robot's x axis), returns up to `max_m` (m), and what it
+    reports for no return (`no_return_m`)."""
+
+    first_deg: float
+    step_deg: float
+    n: int
+    max_m: float
+    no_return_m: float
+
+    @property
+    def angles(self) -> np.ndarray:
+        return np.deg2rad(self.first_deg + self.step_deg * np.arange(self.n))
+
+
+# The kinds of 2D lidar users bring (`--lidar`). `sick` is written as FLASER records (CARMEN's convention:
+# 180 beams from -90 deg in 1 deg steps), the others as ROBOTLASER1 records, which carry their own geometry.
+LIDARS = {
+    "sick": Lidar(-90.0, 1.0, 180, 30.0, 81.9),  # SICK LMS 200 as in Intel, ACES, FR079
+    "utm": Lidar(-135.0, 0.25, 1081, 30.0, 60.0),  # Hokuyo UTM-30LX: 270 deg, 30 m
+    "urg": Lidar(-120.0, 0.36, 667, 5.6, 0.0),  # Hokuyo URG-04LX: 240 deg, 5.6 m, 0 = no return
+    "rplidar": Lidar(-180.0, 1.0, 360, 12.0, 0.0),  # a 360-degree hobby lidar (RPLIDAR A1-like): 12 m
+}
 # Odometry: simulate_odometry's noise model, set for a wheeled robot (keyword arguments).
 ODOM = dict(scale_bias=0.02, yaw_bias_deg_per_m=1.0, yaw_drift_deg_per_min=3.0,
             noise_m_per_sqrt_s=0.005, noise_deg_per_sqrt_s=0.1)  # fmt: skip
@@ -99,7 +126,7 @@ def true_motion(route: np.ndarray) -> Motion:
                   roll=zero, pitch=zero, neck_yaw=zero, head_pitch=zero)  # fmt: skip
 
 
-def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float) -> SimLog:
+def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float, lidar: Lidar = LIDARS["sick"]) -> SimLog:
     """The whole log in memory (see the module doc)."""
     world = build_world(world_seed, n_clutter=40, texture_res_m=0.05, scale=scale, layout="loops")
     motion = true_motion(world.route)
@@ -112,10 +139,10 @@ def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float
     T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -s, s, c
     T[:, 2, 2] = T[:, 3, 3] = 1.0
     T[:, 0, 3], T[:, 1, 3], T[:, 2, 3] = truth[:, 0], truth[:, 1], LIDAR_Z_M
-    r, ids = cast_scans(T, BEAM_ANGLES, world.boxes, np.zeros((ts.size, 0, 4)), LIDAR_MAX_M)
+    r, ids = cast_scans(T, lidar.angles, world.boxes, np.zeros((ts.size, 0, 4)), lidar.max_m)
     rng = np.random.default_rng([seed, 505])
     r = np.round(r + rng.normal(0.0, RANGE_SIGMA_M, r.shape), 2)  # noise, 1 cm steps
-    r[(ids == -1) | (r > LIDAR_MAX_M) | (r <= 0.0)] = NO_RETURN_M
+    r[(ids == -1) | (r > lidar.max_m) | (r <= 0.0)] = lidar.no_return_m
     to = np.arange(0.0, end, 1.0 / ODOM_HZ) + 0.5 / LIDAR_HZ / 2  # ODOM records between scans
     to = to[to < end]
     odom_pose = interp_columns(to, motion.t, odom_fine)
@@ -125,20 +152,35 @@ def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float
                   odom_t=T0 + to, odom_pose=odom_pose, odom_vel=vel)  # fmt: skip
 
 
-def clf_text(log: SimLog) -> str:
-    """The log as CARMEN text: PARAMs, then ODOM and FLASER records in time order. FLASER's
-    laser pose and robot pose are both the odometry (a mount at the robot centre, as Intel)."""
+def clf_text(log: SimLog, lidar: Lidar = LIDARS["sick"]) -> str:
+    """The log as CARMEN text: PARAMs, then ODOM and laser records in time order: FLASER for the
+    SICK (its n = 180 fixes the geometry), ROBOTLASER1 for the others (start angle, field of view,
+    resolution and maximum range in each record). The laser pose and robot pose are both the
+    odometry (a mount at the robot centre, as Intel)."""
+    flaser = lidar == LIDARS["sick"]
     head = ["# simulated by benchmarks/sim_carmen.py (slamlab): wheeled robot, loops building",
-            "# FLASER num_readings [range_readings] x y theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname logger_timestamp",
+            "# FLASER num_readings [range_readings] x y theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname logger_timestamp"
+            if flaser else "# ROBOTLASER1 laser_type start_angle fov angular_res max_range accuracy remission_mode num_readings "
+            "[range_readings] num_remissions laser_pose_x laser_pose_y laser_pose_theta robot_pose_x robot_pose_y "
+            "robot_pose_theta tv rv forward_safety_dist side_safety_dist turn_axis ipc_timestamp ipc_hostname logger_timestamp",
             "# ODOM x y theta tv rv accel ipc_timestamp ipc_hostname logger_timestamp",
-            "PARAM robot_frontlaser_offset 0.0 nohost 0", f"PARAM robot_front_laser_max {NO_RETURN_M} nohost 0"]  # fmt: skip
+            "PARAM robot_frontlaser_offset 0.0 nohost 0"]  # fmt: skip
+    if flaser:
+        head.append(f"PARAM robot_front_laser_max {lidar.no_return_m} nohost 0")
+    geometry = (f"0 {np.deg2rad(lidar.first_deg):.9f} {np.deg2rad(lidar.step_deg * lidar.n):.9f} {np.deg2rad(lidar.step_deg):.12f} "
+                f"{lidar.max_m:g} 0.01 0")  # fmt: skip
     records: list[tuple[float, str]] = []
     for t, p, vel in zip(log.odom_t, log.odom_pose, log.odom_vel):
         records.append((t, f"ODOM {p[0]:.6f} {p[1]:.6f} {wrap_angle(p[2]):.6f} {vel[0]:.6f} {vel[1]:.6f} 0.000000 "
                            f"{t:.6f} nohost {t - T0:.6f}"))  # fmt: skip
     for t, p, r in zip(log.t, log.odom, log.ranges):
         pose = f"{p[0]:.6f} {p[1]:.6f} {wrap_angle(p[2]):.6f}"
-        records.append((t, f"FLASER {N_BEAMS} {' '.join(f'{v:.2f}' for v in r)} {pose} {pose} {t:.6f} nohost {t - T0:.6f}"))
+        ranges = " ".join(f"{v:.2f}" for v in r)
+        if flaser:
+            records.append((t, f"FLASER {lidar.n} {ranges} {pose} {pose} {t:.6f} nohost {t - T0:.6f}"))
+        else:
+            records.append((t, f"ROBOTLASER1 {geometry} {lidar.n} {ranges} 0 {pose} {pose} 0.0 0.0 0.0 0.0 0.0 "
+                               f"{t:.6f} nohost {t - T0:.6f}"))  # fmt: skip
     records.sort(key=lambda rec: rec[0])
     return "\n".join(head + [line for _, line in records]) + "\n"
 
@@ -170,14 +212,14 @@ def relations_text(t: np.ndarray, truth: np.ndarray, local: np.ndarray, loop: np
     return "\n".join(rows(local) + [loop_head] + rows(loop)) + "\n"
 
 
-def write_log(out: Path, scale: float, world_seed: int, seed: int, n_loop: int, yaw_bias_deg_per_m: float) -> Path:
-    """Simulate and write `loops{scale}x_w{world_seed}.clf`, `.relations` and `_truth.tum`
-    into `out`; print a summary; return the log's path."""
-    log = simulate(scale, world_seed, seed, yaw_bias_deg_per_m)
-    stem = f"loops{scale:g}x_w{world_seed}"
+def write_log(out: Path, scale: float, world_seed: int, seed: int, n_loop: int, yaw_bias_deg_per_m: float, lidar: str = "sick") -> Path:
+    """Simulate and write `loops{scale}x_w{world_seed}.clf` (with `_{lidar}` before the suffix but
+    for the SICK), `.relations` and `_truth.tum` into `out`; print a summary; return the log's path."""
+    log = simulate(scale, world_seed, seed, yaw_bias_deg_per_m, LIDARS[lidar])
+    stem = f"loops{scale:g}x_w{world_seed}" + ("" if lidar == "sick" else f"_{lidar}")
     out.mkdir(parents=True, exist_ok=True)
     local, loop = make_relations(log.t, log.truth, seed, n_loop)
-    write_text(out / f"{stem}.clf", clf_text(log))
+    write_text(out / f"{stem}.clf", clf_text(log, LIDARS[lidar]))
     write_text(out / f"{stem}.relations", relations_text(log.t, log.truth, local, loop))
     write_tum(out / f"{stem}_truth.tum", log.t, log.truth)
     route_m = float(np.hypot(*np.diff(log.truth[:, :2], axis=0).T).sum())
@@ -252,13 +294,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("/tmp/simcarmen"))
     ap.add_argument("--loop-relations", type=int, default=300, help="how many loop relations at most")
     ap.add_argument("--yaw-bias-deg-per-m", type=float, default=ODOM["yaw_bias_deg_per_m"], help="odometry yaw bias")
+    ap.add_argument("--lidar", choices=sorted(LIDARS), default="sick", help="the lidar's kind (LIDARS: beams, field of view, range)")
     ap.add_argument("--run", action="store_true", help="run +experiment=lidar2d on the log")
     ap.add_argument("--filter-seeds", default="0,1,2", help="comma-separated filter seeds for --run")
     ap.add_argument("overrides", nargs="*", help="Hydra overrides added to every run (e.g. matcher.max_gap_m=0)")
     args = ap.parse_args(argv)
 
     worlds = [int(w) for w in args.world_seeds.split(",") if w.strip()] if args.world_seeds else [args.world_seed]
-    clfs = {w: write_log(args.out, args.scale, w, args.seed, args.loop_relations, args.yaw_bias_deg_per_m) for w in worlds}
+    clfs = {w: write_log(args.out, args.scale, w, args.seed, args.loop_relations, args.yaw_bias_deg_per_m, args.lidar)
+            for w in worlds}
     if not args.run:
         return 0
     seeds = [int(s) for s in args.filter_seeds.split(",") if s.strip()]

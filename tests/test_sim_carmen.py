@@ -4,6 +4,7 @@ written: the same scans, the odometry it drifted, and relations that are the gro
 from __future__ import annotations
 
 import importlib.util
+import sys
 import warnings
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from slamlab.eval.relations import relation_errors
 _spec = importlib.util.spec_from_file_location(
     "sim_carmen", Path(__file__).resolve().parents[1] / "benchmarks" / "sim_carmen.py")
 sim_carmen = importlib.util.module_from_spec(_spec)
+sys.modules["sim_carmen"] = sim_carmen  # dataclasses look their module up while the file runs
 _spec.loader.exec_module(sim_carmen)
 
 
@@ -32,7 +34,7 @@ def test_the_simulated_log_reads_back_as_written_and_its_relations_are_the_truth
     k = len(seq) // 2  # a scan's readings: 1 cm steps, "no return" beyond 30 m
     f = seq.scans[k]
     want = log.ranges[k]
-    hit = want < sim_carmen.NO_RETURN_M
+    hit = want < sim_carmen.LIDARS["sick"].no_return_m
     assert np.allclose(f.ranges[hit & f.valid], want[hit & f.valid], atol=1e-4) and (f.valid == hit).all()
     drift = np.hypot(*(log.odom[-1, :2] - log.truth[-1, :2]))
     assert drift > 3.0  # the odometry drifts by metres
@@ -41,6 +43,26 @@ def test_the_simulated_log_reads_back_as_written_and_its_relations_are_the_truth
     assert relation_errors(log.t, log.truth, seq.relations)["trans_abs_mean_m"] < 1e-5
     assert relation_errors(log.t, log.odom, seq.relations)["trans_abs_mean_m"] > 0.1
     assert ((seq.relations.t2 - seq.relations.t1) > sim_carmen.LOOP_MIN_DT_S).sum() >= 10
+
+
+def test_a_lidar_with_its_own_geometry_is_written_as_robotlaser1_and_reads_back(tmp_path):
+    # The short-range Hokuyo: 667 beams over 240 degrees, 5.6 m, 0 for no return.
+    urg = sim_carmen.LIDARS["urg"]
+    clf = sim_carmen.write_log(tmp_path, scale=1.0, world_seed=0, seed=0, n_loop=10, yaw_bias_deg_per_m=1.0, lidar="urg")
+    assert clf.name == "loops1x_w0_urg.clf" and "ROBOTLASER1" in clf.read_text()[:2000]
+    log = sim_carmen.simulate(1.0, 0, 0, 1.0, urg)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        seq = load_carmen(clf)
+    k = len(seq) // 3
+    f = seq.scans[k]
+    np.testing.assert_allclose(f.angles, urg.angles, atol=1e-6)
+    assert np.isclose(f.angles[0], np.deg2rad(-120.0)) and np.isclose(f.angles[-1], np.deg2rad(119.76), atol=1e-6)
+    want = log.ranges[k]
+    hit = want > 0.0
+    assert 0 < hit.sum() < urg.n  # some beams see nothing within 5.6 m
+    assert (f.valid == hit).all() and np.allclose(f.ranges[hit], want[hit], atol=1e-4)
+    assert want[hit].max() <= urg.max_m
 
 
 def test_the_summary_line_names_the_mean_the_worst_run_and_the_failures():
