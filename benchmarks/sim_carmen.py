@@ -41,6 +41,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -68,8 +69,7 @@ LIDAR_Z_M = 0.35  # lidar plane above the floor (Pioneer + SICK)
 RANGE_SIGMA_M = 0.01
 
 
-@dataclass(frozen=True)
-class Lidar:
+class Lidar(NamedTuple):  # a NamedTuple, not a dataclass: bench_graph and the tests load this file without a module entry
     """A 2D lidar as the log describes it: `n` beams from `first_deg` in `step_deg` steps
     (degrees, counter-clockwise from the robot's x axis), returns up to `max_m` (m), and what it
     reports for no return (`no_return_m`)."""

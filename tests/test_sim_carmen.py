@@ -4,7 +4,6 @@ written: the same scans, the odometry it drifted, and relations that are the gro
 from __future__ import annotations
 
 import importlib.util
-import sys
 import warnings
 from pathlib import Path
 
@@ -16,7 +15,6 @@ from slamlab.eval.relations import relation_errors
 _spec = importlib.util.spec_from_file_location(
     "sim_carmen", Path(__file__).resolve().parents[1] / "benchmarks" / "sim_carmen.py")
 sim_carmen = importlib.util.module_from_spec(_spec)
-sys.modules["sim_carmen"] = sim_carmen  # dataclasses look their module up while the file runs
 _spec.loader.exec_module(sim_carmen)
 
 
