@@ -14,9 +14,9 @@ log go Kuemmerle-style relations from the ground truth: one every 1 s to a scan 
 then, after a `#` comment line, up to `--loop-relations` between places revisited more than
 60 s apart (true positions within 1.5 m), which measure loop closure; and the true poses of
 the scans (`<stem>_truth.tum`). `--lidar` swaps the SICK for another kind of 2D lidar users
-bring (`LIDARS`: a 270-degree 30 m Hokuyo, a 240-degree 5.6 m one, a 360-degree 12 m one),
-written as ROBOTLASER1 records with their own geometry: short range and a different field of
-view are what a log we do not have is most likely to differ in.
+bring (`LIDARS`: a SICK at half-degree steps, a 270-degree 30 m Hokuyo, a 240-degree 5.6 m
+one, a 360-degree 12 m one), written as ROBOTLASER1 records with their own geometry: beam
+spacing, range and field of view are what a log we do not have is most likely to differ in.
 
     .venv/bin/python benchmarks/sim_carmen.py --scale 2.0 --world-seed 0 [--out /tmp/simcarmen]
     .venv/bin/python benchmarks/sim_carmen.py --scale 2.0 --world-seed 0 --run --filter-seeds 0,1,2 [OVERRIDE ...]
@@ -89,6 +89,7 @@ class Lidar(NamedTuple):  # a NamedTuple, not a dataclass: bench_graph and the t
 # 180 beams from -90 deg in 1 deg steps), the others as ROBOTLASER1 records, which carry their own geometry.
 LIDARS = {
     "sick": Lidar(-90.0, 1.0, 180, 30.0, 81.9),  # SICK LMS 200 as in Intel, ACES, FR079
+    "sick_half": Lidar(-90.0, 0.5, 361, 30.0, 81.9),  # a SICK at half-degree steps (361 beams), as some Radish logs
     "utm": Lidar(-135.0, 0.25, 1081, 30.0, 60.0),  # Hokuyo UTM-30LX: 270 deg, 30 m
     "urg": Lidar(-120.0, 0.36, 667, 5.6, 0.0),  # Hokuyo URG-04LX: 240 deg, 5.6 m, 0 = no return
     "rplidar": Lidar(-180.0, 1.0, 360, 12.0, 0.0),  # a 360-degree hobby lidar (RPLIDAR A1-like): 12 m
