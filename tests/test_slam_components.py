@@ -739,3 +739,43 @@ def test_the_grid_matcher_matches_only_the_points_with_a_close_neighbour():
     _, kept_only = GridMatcher(xy_half_width_m=0.0, beam_step=1).match(g, pose, ScanPoints(xy=isolated_filter(xy, 0.6), origin=np.zeros(2)))
     _, every = GridMatcher(xy_half_width_m=0.0, beam_step=1).match(g, pose, ScanPoints(xy=xy, origin=np.zeros(2)))
     assert with_gap[0] == kept_only[0] < every[0]  # the lone far hits no longer count
+
+
+def test_the_prior_weighs_per_beam_spacing_so_a_denser_lidar_lands_where_a_sparser_one_does():
+    """matcher.prior_beam_deg: a lidar with beams 4x closer scores 4x more points off the same
+    walls. With the prior as given it outweighs the prior 4x and lands nearer the map's optimum;
+    with the prior weighed for its beam spacing it lands where the sparse lidar does."""
+    def room_scan(n: int) -> ScanPoints:  # the 4 x 4 m room seen from its centre by n beams
+        a = np.linspace(-np.pi, np.pi, n, endpoint=False)
+        d = 2.0 / np.maximum(np.abs(np.cos(a)), np.abs(np.sin(a))) * 0.999
+        return ScanPoints(xy=np.stack([d * np.cos(a), d * np.sin(a)], 1), origin=np.zeros(2))
+
+    g = OccupancyGrid(MapSettings(resolution_m=0.05, initial_size_m=6.0), field_sigma_m=0.1, field_radius_m=0.3)
+    for _ in range(3):
+        g.insert(np.zeros(2), room_scan(360).xy)
+    kw = dict(sigma_m=0.1, radius_m=0.3, xy_half_width_m=0.1, xy_step_m=0.05, yaw_half_width_rad=0.1, yaw_step_rad=0.025,
+              refine_levels=5, prior_sigma_xy_m=0.01, prior_sigma_yaw_rad=0.05)
+    sparse, dense = room_scan(90), room_scan(360)  # 4 and 1 degree(s) apart
+    start = np.array([[0.08, 0.0, 0.0]])  # the prediction 8 cm off the room's centre, where the map puts the scans
+    plain = LikelihoodFieldMatcher(**kw)
+    weighed = LikelihoodFieldMatcher(**kw, prior_beam_deg=4.0)
+    assert plain.for_beam_spacing(np.radians(1.0)) is plain  # prior_beam_deg 0: any lidar, the prior as given
+    assert weighed.for_beam_spacing(np.radians(4.0)) is weighed  # the lidar the prior is for: itself
+    x_sparse = weighed.match(g, start, sparse)[0][0, 0]
+    x_dense_plain = plain.match(g, start, dense)[0][0, 0]
+    dense_matcher = weighed.for_beam_spacing(np.radians(1.0))
+    x_dense = dense_matcher.match(g, start, dense)[0][0, 0]
+    assert 0.04 < x_sparse < 0.075  # the prior holds the match off the map's optimum (x = 0) ...
+    assert x_dense_plain < x_sparse - 0.02  # ... 4x the points pull it much nearer
+    assert abs(x_dense - x_sparse) < 0.005  # weighed 4x: where the sparse lidar lands
+    assert (dense_matcher.kxy, dense_matcher.kyaw) == (4 * weighed.kxy, 4 * weighed.kyaw)
+    assert weighed.kxy == 0.5 / 0.01**2  # the original is untouched
+
+
+def test_a_sequence_beam_spacing_is_its_first_scan_angle_step():
+    from slamlab.frames import Sequence
+    from slamlab.slam.scan import beam_spacing_rad
+
+    frame = _frame(np.ones(667), np.radians(-120.0 + 0.36 * np.arange(667)))  # a URG-04LX's 240 degrees
+    assert np.isclose(np.degrees(beam_spacing_rad(Sequence(name="urg", scans=[frame], body_height_m=None, sources=[]))), 0.36, atol=1e-4)
+    assert beam_spacing_rad(Sequence(name="empty", scans=[], body_height_m=None, sources=[])) == 0.0

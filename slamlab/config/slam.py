@@ -162,9 +162,12 @@ class GridMatcherConfig:
     move_to_best: bool = True  # move each particle to its best offset
     beam_step: int = 4  # use every k-th scan point (THOR: 1081 beams; 4 keeps it faster than real time)
     max_gap_m: float = 0.0  # match only points with a scan neighbour within max_gap_m (0 = every point; see the likelihood matcher)
+    prior_beam_deg: float = 0.0  # no effect (the grid matcher has no motion prior): accepted so that `matcher=grid`
+    # can switch a preset that sets it (`lidar2d`)
 
     def __post_init__(self) -> None:
         _check_offset_grid(self.GROUP, self.xy_half_width_m, self.xy_step_m, self.yaw_half_width_rad, self.yaw_step_rad)
+        require_nonnegative(self.GROUP, "prior_beam_deg", self.prior_beam_deg)
         require_int(self.GROUP, "beam_step", self.beam_step, 1)
         require_nonnegative(self.GROUP, "max_gap_m", self.max_gap_m)
 
@@ -188,6 +191,9 @@ class LikelihoodMatcherConfig:
     refine_levels: int = 4  # hill-climb step halvings (refine=climb)
     prior_sigma_xy_m: float = 0.05  # motion prior: an offset d from the prediction costs 0.5 (d/sigma)^2 (0 = off);
     prior_sigma_yaw_rad: float = 0.1  # keeps long corridors (ACES) from sliding, leaves room for Intel's poor yaw
+    prior_beam_deg: float = 0.0  # the prior's sigmas are for a lidar with beams this far apart (degrees; 0: for any
+    # lidar): the score is a sum over points, so a lidar with beams k times closer outweighs the same prior k times
+    # over, and the prior's weight is multiplied by k (`LikelihoodFieldMatcher.for_beam_spacing`)
     move_to_best: bool = True
     voxel_m: float = 0.0  # match one point per voxel_m square of the scan (0 = every point): a surface
     # weighs by its size, not by the angle it covers (a person close by cannot outvote the walls)
@@ -208,6 +214,7 @@ class LikelihoodMatcherConfig:
             raise ConfigError(f"{g}.isolated", "stretch needs matcher.max_gap_m > 0 (the gap that makes a scan point a lone hit)")
         require_nonnegative(g, "prior_sigma_xy_m", self.prior_sigma_xy_m)
         require_nonnegative(g, "prior_sigma_yaw_rad", self.prior_sigma_yaw_rad)
+        require_nonnegative(g, "prior_beam_deg", self.prior_beam_deg)
         require_nonnegative(g, "voxel_m", self.voxel_m)
         require_nonnegative(g, "max_gap_m", self.max_gap_m)
         require_positive(g, "sigma_m", self.sigma_m)

@@ -40,6 +40,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numba
 import numpy as np
@@ -51,7 +52,7 @@ from slamlab.slam.odometry_scale import learn_scales, scaled_start
 from slamlab.slam.plan import BetweenScans, Components, plan_steps
 from slamlab.slam.replay import ReplayRecorder, snapshot_steps
 from slamlab.slam.result import ParticleHistory, SlamResult
-from slamlab.slam.scan import ScanBatch, points_to_world, project_scans, range_limits, scan_to_points
+from slamlab.slam.scan import ScanBatch, beam_spacing_rad, points_to_world, project_scans, range_limits, scan_to_points
 from slamlab.slam.spread import spread_columns
 from slamlab.slam.steps import fill_between_steps
 from slamlab.slam.tiles import decode_image
@@ -93,6 +94,8 @@ def run_slam(
     # six alternated pairs: faster in five, by 0.6-1.7 s of 8-10 s (slower by 0.3 s in one);
     # ACES and the default sim run within their noise. OpenMP splits the loop in fixed blocks
     # whatever this says. Results do not depend on it.
+    # the matcher's prior weighed for this lidar's beam density (matcher.prior_beam_deg)
+    c = replace(c, matcher=c.matcher.for_beam_spacing(beam_spacing_rad(sequence)))
     with numba.parallel_chunksize(1):
         if c.mode == "slam" and c.filter.family == "graph":  # one trajectory, its own loop
             from slamlab.slam.graph.run import run_graph

@@ -258,6 +258,15 @@ def range_limits(settings: MapSettings, sequence: Sequence) -> tuple[float, floa
     return float(lo), float(hi)
 
 
+def beam_spacing_rad(sequence: Sequence) -> float:
+    """The angle (rad) between neighbouring beams of the sequence's lidar: the median step of
+    the first scan's beam angles (0 when its first scan has fewer than two beams)."""
+    if not len(sequence.scans):
+        return 0.0
+    angles = np.asarray(sequence.scans[0].angles, dtype=np.float64)
+    return float(np.median(np.abs(np.diff(angles)))) if len(angles) > 1 else 0.0
+
+
 def points_to_world(points_xy: FloatArray, pose: FloatArray) -> FloatArray:
     """Rotate (M, 2) body-yaw points by pose[2] (rad) and translate by pose[:2] (m)."""
     return place(points_xy, pose[0], pose[1], np.cos(pose[2]), np.sin(pose[2]))
