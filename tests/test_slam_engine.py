@@ -60,6 +60,22 @@ def test_same_seed_same_trajectory_bit_for_bit():
     assert c.trajectory.tobytes() != a.trajectory.tobytes()
 
 
+def test_the_run_weighs_the_matchers_prior_for_the_sequences_beam_spacing():
+    """matcher.prior_beam_deg: a prior chosen for the room's own lidar (181 beams over the full
+    turn: 1.99 degrees apart) is the prior as given, to the bit; one chosen for beams 1 degree
+    apart weighs half as much on this lidar, and the run changes."""
+    seq = _room_sequence()
+    spacing_deg = 360.0 / 181
+
+    def run(*extra: str):
+        return run_slam(seq, build_components(_cfg("particles=10", "seed=3", "matcher=likelihood", *extra)))
+
+    plain = run()
+    own = run(f"matcher.prior_beam_deg={spacing_deg:.4f}")
+    assert own.trajectory.tobytes() == plain.trajectory.tobytes()
+    assert run("matcher.prior_beam_deg=1.0").trajectory.tobytes() != plain.trajectory.tobytes()
+
+
 def test_ancestral_path_follows_parents_not_indices():
     # 3 steps, 3 particles; pose x = 10 * step + particle index, so the path names its ancestors.
     hist = np.zeros((3, 3, 3))
