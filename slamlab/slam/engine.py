@@ -88,14 +88,14 @@ def run_slam(
     True the run stops there and returns the scans up to that step (Ctrl-C keeps a partial run).
     Returns one pose per scan (the first `steps.max_scans` scans when set; with
     `steps.max_steps`, the scans up to the last processed step)."""
+    # the matcher's prior weighed for this lidar's beam density (matcher.prior_beam_deg)
+    c = replace(c, matcher=c.matcher.for_beam_spacing(beam_spacing_rad(sequence)))
     # The kernels' parallel loops go to the threads one particle (or scan) at a time, not in
     # one block per thread: particles' searches and map updates differ in cost, and on the TBB
     # layer (slamlab/__init__.py) a thread that is done takes the next one. Intel's filter,
     # six alternated pairs: faster in five, by 0.6-1.7 s of 8-10 s (slower by 0.3 s in one);
     # ACES and the default sim run within their noise. OpenMP splits the loop in fixed blocks
     # whatever this says. Results do not depend on it.
-    # the matcher's prior weighed for this lidar's beam density (matcher.prior_beam_deg)
-    c = replace(c, matcher=c.matcher.for_beam_spacing(beam_spacing_rad(sequence)))
     with numba.parallel_chunksize(1):
         if c.mode == "slam" and c.filter.family == "graph":  # one trajectory, its own loop
             from slamlab.slam.graph.run import run_graph

@@ -719,7 +719,7 @@ class LikelihoodFieldMatcher(Matcher):
         """With `prior_beam_deg` set: this matcher with its prior's weight multiplied by
         prior_beam_deg / the lidar's beam spacing (to 2 decimals: a 1-degree SICK is exactly
         1, itself). A URG-04LX (0.36 degrees, 5.6 m) on the corridor probe
-        (`benchmarks/sim_carmen.py --lidar urg`) matched each step ~6 % short down bare
+        (`benchmarks/sim_carmen.py --lidar urg`) matched each step ~5 % short down bare
         corridors under the prior tuned on 1-degree lidars (1.5 m behind after 29 m)."""
         if not (self.prior_beam_deg > 0 and spacing_rad > 0):
             return self
