@@ -43,6 +43,19 @@ def se2_between(a: ArrayLike, b: ArrayLike) -> FloatArray:
     return se2_compose(se2_inverse(a), b)
 
 
+def se2_fit(src_xy: ArrayLike, dst_xy: ArrayLike) -> FloatArray:
+    """The pose T (x m, y m, theta rad) that best carries points `src_xy` onto `dst_xy` (both
+    (N, 2), pairwise): se2_compose(T, (p, 0)) ~ q in the least-squares sense, rotation and
+    translation only (Kabsch in 2-D). One point gives the pure translation."""
+    a = np.asarray(src_xy, dtype=np.float64).reshape(-1, 2)
+    b = np.asarray(dst_xy, dtype=np.float64).reshape(-1, 2)
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    u, v = a - ca, b - cb
+    theta = float(np.arctan2(np.sum(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]), np.sum(u[:, 0] * v[:, 0] + u[:, 1] * v[:, 1])))
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([cb[0] - (c * ca[0] - s * ca[1]), cb[1] - (s * ca[0] + c * ca[1]), theta])
+
+
 def weighted_mean_pose(poses: ArrayLike, weights: ArrayLike) -> FloatArray:
     """The weighted mean of SE(2) poses (N, 3) (x m, y m, theta rad): x and y averaged, theta
     the circular mean (the angle of the weighted sum of unit vectors). `weights` (N,) need

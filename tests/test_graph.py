@@ -28,7 +28,7 @@ from slamlab.slam.graph.loops import ACCEPTED, PENDING, PRUNED, REFUTED, LoopCan
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.submaps import search_grid_of
 from slamlab.slam.grid import OccupancyGrid
-from slamlab.slam.graph.run import _try_group
+from slamlab.slam.graph.run import _try_group, redraw_poses
 from slamlab.slam.graph.verify import ClosureVerifier, VerifySettings, consistency_matrix, max_clique, shortest_paths, tied_distances
 from test_slam_engine import _cfg
 
@@ -477,6 +477,44 @@ def test_an_optimisation_taken_back_is_no_correction():
 
 
 # ---- end to end -------------------------------------------------------------------------------
+def _l_shaped_path(k: int = 40) -> np.ndarray:
+    """(k, 3) poses 0.5 m apart: east along a corridor, then north up another."""
+    xy = np.array([[min(i, k // 2) * 0.5, max(i - k // 2, 0) * 0.5] for i in range(k)])
+    yaw = np.where(np.arange(k) <= k // 2, 0.0, np.pi / 2)
+    return np.column_stack([xy, yaw])
+
+
+def test_a_turn_of_the_whole_map_redraws_it_in_place_in_the_online_frame_and_only_once():
+    """`filter.redraw_frame`: a graph that holds the online map's path turned 2 degrees about
+    the start (an early heading it undid) redraws it turned (`graph`) or where it is (`online`),
+    and in the online frame the turn is laid aside: the same graph does not redraw it again."""
+    on_map, none = _l_shaped_path(), np.zeros(3)
+    turned = se2_compose(np.array([0.0, 0.0, np.radians(2.0)]), on_map)
+    at, laid = redraw_poses(turned, on_map, none, "graph", 0.15, 0.035)
+    np.testing.assert_array_equal(at, turned)
+    assert not laid.any()
+    at, laid = redraw_poses(turned, on_map, none, "online", 0.15, 0.035)
+    np.testing.assert_allclose(at, on_map, atol=1e-9)
+    np.testing.assert_allclose(laid, [0.0, 0.0, np.radians(-2.0)], atol=1e-12)
+    assert redraw_poses(turned, at, laid, "online", 0.15, 0.035) is None
+    assert redraw_poses(turned, turned, none, "graph", 0.15, 0.035) is None
+
+
+def test_a_redraw_in_the_online_frame_moves_the_online_path_by_what_the_graph_bent_only():
+    on_map = _l_shaped_path()
+    bent = on_map.copy()
+    bent[-5:, 0] -= np.linspace(0.1, 0.5, 5)  # the last metres pulled 0.1-0.5 m west (a loop closing)
+    graph = se2_compose(np.array([3.0, -1.0, 0.3]), bent)  # in the graph's frame, turned and moved
+    at, _ = redraw_poses(graph, on_map, np.zeros(3), "online", 0.15, 0.035)
+    # laid on the online map (least squares over all nodes: the bend's mean shift spreads over them): the path the graph
+    # bent moves west, the rest a few centimetres; in the graph's frame every node would have moved metres
+    moved = np.hypot(*(at[:, :2] - on_map[:, :2]).T)
+    assert -0.5 < at[-1, 0] - on_map[-1, 0] < -0.3 and moved[:-5].max() < 0.15
+    assert np.hypot(*(graph[:, :2] - on_map[:, :2]).T).min() > 1.0
+    # and the shape is the graph's: every node's pose relative to the first as the graph has it
+    np.testing.assert_allclose(se2_between(at[0], at), se2_between(graph[0], graph), atol=1e-9)
+
+
 @pytest.fixture(scope="module")
 def loop_log(tmp_path_factory):
     """The 3x `loops` building's log (sim_carmen: 656 m, corridors of ~100 m), as a sequence."""

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from slamlab.geometry import se2_between, se2_compose, se2_inverse, wrap_angle
+from slamlab.geometry import se2_between, se2_compose, se2_fit, se2_inverse, wrap_angle
 
 
 def test_compose_known_answer():
@@ -41,3 +41,23 @@ def test_weighted_mean_pose_averages_position_and_yaw_across_the_wrap():
     assert abs(wrap_angle(m[2] - (np.pi - 0.05))) < 1e-3
     # one particle with all the weight is that particle
     np.testing.assert_allclose(weighted_mean_pose(poses, [0.0, 1.0]), poses[1])
+
+
+def test_se2_fit_recovers_a_rigid_motion_and_fits_noisy_points_in_the_least_squares_sense():
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(40, 3)) * [10.0, 10.0, 1.0]
+    motion = np.array([1.5, -2.0, 0.4])
+    moved = se2_compose(motion, pts)
+    np.testing.assert_allclose(se2_fit(pts[:, :2], moved[:, :2]), motion, atol=1e-12)
+    # with noise on the targets, no small change of the fitted motion lowers the squared distances
+    noisy = moved[:, :2] + rng.normal(scale=0.05, size=(40, 2))
+    fit = se2_fit(pts[:, :2], noisy)
+
+    def cost(m):
+        return float(np.sum((se2_compose(m, pts)[:, :2] - noisy) ** 2))
+
+    for dim in range(3):
+        for h in (-1e-4, 1e-4):
+            assert cost(fit + np.eye(3)[dim] * h) > cost(fit)
+    # one point: the translation that carries it there
+    np.testing.assert_allclose(se2_fit(pts[:1, :2], moved[:1, :2]), [*(moved[0, :2] - pts[0, :2]), 0.0], atol=1e-12)

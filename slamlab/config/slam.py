@@ -341,6 +341,13 @@ class GraphFilterConfig:
     # 0.15 against 0.3 (bench_graph.py, 2026-11-29): ACES worst causal 0.0399 / 0.0382 m at 0.5 / 0.25 m steps (0.0417 /
     # 0.0517), corridor probe worst smoothed 0.113 / 0.100 m at 2x / 3x (0.140 / 0.110; worst causal 0.190 / 0.207 against
     # 0.182 / 0.156), sim_loops worst ATE 0.268 / 0.396 m at 1.5 / 2.0 (0.142 / 0.474); Intel unchanged (no redraw there)
+    redraw_frame: str = "graph"  # local_map=map: the frame a redrawn online map is drawn in: `graph` (the graph's own, its
+    # first node fixed) or `online` (the graph's poses moved by the one rigid motion that best lays every node where the
+    # online map has it; later redraws are judged in that frame): the online path then moves at a redraw by what the
+    # graph bent, not by a turn of the whole map. `graph` by measurement (2026-11-30, benchmarks/RESULTS.md): `online`
+    # takes Intel's worst causal error over steps 0.44-0.56 from 0.064 to 0.042 m (mean 0.033 -> 0.024), ACES's worst
+    # over 0.23-1.0 from 0.082 to 0.078, but a corridor probe (3x, world 2) lost a loop (smoothed 0.05 -> 0.24 m) and
+    # sim_loops 2.0 got worse (worst aligned ATE 0.138 -> 0.156 m); the rotation about the start alone did worse still
     local_yaw_half_width_rad: float = 0.2  # local SLAM: each node's match starts from a coarse grid this wide in yaw (rad; the
     # matcher's own yaw_half_width_rad when that is wider; the scans between steps keep the matcher's): a step ends after
     # steps.min_angle_rad of turning, and the odometry's yaw error grows with the turn. 0.2 against 0.1 (2026-11-29,
@@ -451,6 +458,7 @@ class GraphFilterConfig:
         require_choice(g, "loss", self.loss, ("cauchy", "huber", "none"))
         require_choice(g, "local_map", self.local_map, ("map", "submap", "particles"))
         require_choice(g, "wall_at", self.wall_at, ("centre", "hits"))
+        require_choice(g, "redraw_frame", self.redraw_frame, ("graph", "online"))
         require_bool(g, "final_match", self.final_match)
         _check_online(self.online)
 

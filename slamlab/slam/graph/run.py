@@ -15,7 +15,8 @@ Per processed step k (the same steps as the particle filters, `steps.*`):
    updated incrementally (ISAM2), a group asking for a correction is optimised in as a whole
    (`_try_group`); closures the optimum leaves far off are dropped;
 5. when the graph puts node k `redraw_m` / `redraw_rad` away from the online map, that map is
-   drawn again from the graph; the online (causal) pose of step k is local SLAM's.
+   drawn again from the graph (`redraw_poses`: in the graph's frame, or laid rigidly on the
+   online map's with `redraw_frame=online`); the online (causal) pose of step k is local SLAM's.
 At the end the graph is optimised once more: its estimate places the nodes, and (with
 `filter.final_match`, when the scans between steps were matched: `steps.between=match`)
 every scan is matched once more on a map of the nodes' scans at those poses (`final_match`):
@@ -39,7 +40,7 @@ import numpy as np
 
 from slamlab.errors import ConfigError
 from slamlab.frames import Sequence
-from slamlab.geometry import FloatArray, se2_between, se2_compose
+from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_fit
 from slamlab.io.table import Table
 from slamlab.slam.graph import GraphFilter
 from slamlab.slam.graph.final_match import match_on_final_map
@@ -103,6 +104,8 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
     verifier = ClosureVerifier(VerifySettings(s.trust_m, s.trust_rad, s.loop_min_path_m, s.group_size, s.group_extent_m, s.group_span_m, s.consistency_m,
                                               s.consistency_per_m, s.consistency_rad, s.consistency_rad_per_m, group_submaps=s.group_submaps))
     causal = np.empty((n_steps, 3))
+    on_map = np.empty((n_steps, 3))  # local_map=map: each node's pose on the online map as it is now ...
+    laid = np.zeros(3)  # ... and the rigid motion from the graph's frame to that map's (`redraw_frame=online`)
     path_m = np.zeros(n_steps)  # path length (m) of the local trajectory at each node
     candidates: list[LoopCandidate] = []
     rows: dict[str, list] = {k: [] for k in ("step_time_s", "closures", "optimise_s")}
@@ -170,13 +173,17 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
         for cand in accepted:
             if cand.status == ACCEPTED and not cand.along_line:  # a corridor match leaves the place along it open: no tie
                 tied.add_closure(cand.node, cand.anchor, path_m)
-        if tracker.whole and _apart(graph.poses[k], tracker.online, s.redraw_m, s.redraw_rad):
-            # the graph moved the robot away from where the online map has it: draw that map again from the graph
-            t1 = time.perf_counter()
-            d = se2_between(tracker.online, graph.poses[k])
-            log.debug("node %d: the graph moved the robot %.2f m, %.1f deg from the online map: redrawn", k, float(np.hypot(d[0], d[1])), float(np.degrees(d[2])))
-            tracker.redraw([points(i) for i in step_scans[: k + 1]], graph.poses[: k + 1])
-            opt_s += time.perf_counter() - t1
+        if tracker.whole:
+            on_map[k] = tracker.online
+            redraw = redraw_poses(graph.poses[: k + 1], on_map[: k + 1], laid, s.redraw_frame, s.redraw_m, s.redraw_rad)
+            if redraw is not None:
+                # the graph moved the robot away from where the online map has it: draw that map again from the graph
+                t1 = time.perf_counter()
+                on_map[: k + 1], laid = redraw
+                d = se2_between(tracker.online, on_map[k])
+                log.debug("node %d: the graph moved the robot %.2f m, %.1f deg from the online map: redrawn", k, float(np.hypot(d[0], d[1])), float(np.degrees(d[2])))
+                tracker.redraw([points(i) for i in step_scans[: k + 1]], on_map[: k + 1])
+                opt_s += time.perf_counter() - t1
         causal[k] = tracker.online if tracker.whole else graph.poses[k]
         rows["closures"].append(len(accepted))
         rows["optimise_s"].append(opt_s)
@@ -344,6 +351,27 @@ def closures_table(candidates: list[LoopCandidate], graph: PoseGraph, node_times
         "final_x": final[nodes, 0], "final_y": final[nodes, 1], "anchor_x": final[anchors, 0], "anchor_y": final[anchors, 1],
         "residual_m": residual, "sigma_along_m": np.array([float(np.sqrt(sym_eig(np.ascontiguousarray(c.covariance[:2, :2]))[0][-1])) for c in candidates]),
     })
+
+
+def redraw_poses(graph_poses: FloatArray, on_map: FloatArray, laid: FloatArray, frame: str, m: float,
+                 rad: float) -> tuple[FloatArray, FloatArray] | None:
+    """Where to draw the online map again, nodes 0..K-1 ((K, 3)), with the rigid motion that
+    lays the graph's frame on the online map's from then on; or None to keep the map. It is
+    drawn again when the graph's estimate `graph_poses` (K, 3), moved by `laid` (the motion the
+    last redraw took; zeros before any), puts the newest node `m` metres or `rad` away from
+    where the online map has it (`on_map`, (K, 3): each node's pose on that map as it is now).
+    `frame` (`filter.redraw_frame`): `graph` draws it at the graph's poses, in the graph's own
+    frame (its first node fixed; `laid` stays zero); `online` at the graph's poses moved by the
+    one rigid motion that best lays every node on the online map (least squares over
+    positions): the map takes the graph's shape but keeps its place, so the online path moves
+    by what the graph bent and not by a turn of the whole map (an early heading error that the
+    graph undid about the start)."""
+    if frame == "graph":
+        return (graph_poses.copy(), laid) if _apart(graph_poses[-1], on_map[-1], m, rad) else None
+    if not _apart(se2_compose(laid, graph_poses[-1]), on_map[-1], m, rad):
+        return None
+    laid = se2_fit(graph_poses[:, :2], on_map[:, :2])
+    return se2_compose(laid, graph_poses), laid
 
 
 def _apart(a: FloatArray, b: FloatArray, m: float, rad: float) -> bool:
