@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from slamlab.frames import GridImage
-from slamlab.geometry import FloatArray, wrap_angle
+from slamlab.geometry import FloatArray, se2_compose, se2_fit, wrap_angle
 
 
 def trajectory_errors(estimate: FloatArray, truth: FloatArray) -> dict[str, float]:
@@ -43,14 +43,10 @@ def trajectory_errors(estimate: FloatArray, truth: FloatArray) -> dict[str, floa
 
 def aligned_rmse(estimate_xy: FloatArray, truth_xy: FloatArray) -> float:
     """RMSE (m) of (N, 2) positions after the rigid 2-D motion that best maps the estimate
-    onto the truth (least squares: Kabsch/Umeyama without scale, no reflection)."""
-    e = np.asarray(estimate_xy, dtype=np.float64)
-    g = np.asarray(truth_xy, dtype=np.float64)
-    ce, cg = e.mean(axis=0), g.mean(axis=0)
-    u, _, vt = np.linalg.svd((e - ce).T @ (g - cg))
-    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
-    rot = vt.T @ np.diag([1.0, d]) @ u.T
-    moved = (e - ce) @ rot.T + cg
+    onto the truth (least squares, rotation and translation only: `geometry.se2_fit`)."""
+    e = np.asarray(estimate_xy, dtype=np.float64).reshape(-1, 2)
+    g = np.asarray(truth_xy, dtype=np.float64).reshape(-1, 2)
+    moved = se2_compose(se2_fit(e, g), np.column_stack([e, np.zeros(len(e))]))[:, :2]
     return float(np.sqrt(np.mean(np.sum((moved - g) ** 2, axis=1))))
 
 
