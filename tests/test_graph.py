@@ -24,7 +24,7 @@ from slamlab.eval.relations import relation_errors
 from slamlab.geometry import se2_between, se2_compose
 from slamlab.slam.engine import run_slam
 from slamlab.slam.graph.branch_bound import NO_EXCLUSION, CorrelativeSearch, SearchGrid, SearchWindow, bnb_search, exhaustive_search, max_pool_levels, place_points, top_bounds
-from slamlab.slam.graph.loops import ACCEPTED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings
+from slamlab.slam.graph.loops import ACCEPTED, OVERRULED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.submaps import search_grid_of
 from slamlab.slam.grid import OccupancyGrid
@@ -474,6 +474,93 @@ def test_an_optimisation_taken_back_is_no_correction():
     assert g.optimisations[-1].taken_back and np.array_equal(g.poses, kept)
     g.optimise_batch()
     assert not g.optimisations[-1].taken_back
+
+
+def _drifted_square(truth: np.ndarray) -> PoseGraph:
+    """A graph of the square loop whose local edges slip 3 cm sideways a step on its first two
+    sides (its end 1.7 m off), no closures yet; each step's length is as unsure as down a bare
+    corridor (sigma 0.13 m a step along it), so a closure may move the path metres along its sides."""
+    g = PoseGraph(truth[0], GraphNoise(0.01, 0.02, 0.005, 0.02, 0.03, 0.01, "cauchy", 0.5, local_sigma_along_per_m=0.25))
+    for k in range(1, len(truth)):
+        g.add_node(se2_compose(se2_between(truth[k - 1], truth[k]), np.array([0.0, 0.03 if k <= 80 else 0.0, 0.0])))
+    g.update()
+    return g
+
+
+def _enter_group(g: PoseGraph, by_loop: dict, pairs, truth: np.ndarray, shift_m: float = 0.0, in_group: bool = True):
+    """Closures (anchor, node) from `pairs` added to `g` as one group (or singly), each saying its
+    node is `shift_m` ahead of where it truly is; entered by `_try_group` (a group) or by an
+    update (singly). Returns the closures and the closures the group overruled."""
+    group = []
+    for a, n in pairs:
+        c = _closure(n, a, truth, (shift_m, 0.0, 0.0))
+        c.status, c.in_group, c.group = ACCEPTED, in_group, max(n for _, n in pairs) if in_group else -1
+        c.loop_id = g.add_loop(a, n, c.relative, c.covariance)
+        by_loop[c.loop_id] = c
+        group.append(c)
+    if not in_group:
+        g.update()
+        return group, []
+    _, overruled = _try_group(g, by_loop, group, SimpleNamespace(prune_m=0.5, prune_rad=0.15), max(n for _, n in pairs))
+    return group, overruled
+
+
+@pytest.mark.parametrize("later_nodes", [5, 3])
+def test_a_later_larger_group_overrules_an_earlier_group_it_contradicts(later_nodes):
+    """Back at the start of the drifted square, a group of closures from 4 nodes says they are
+    3 m further along than they are (a corridor matched a period off), and enters: nothing
+    contradicts it yet. Then a group of correct closures comes: it leaves the first group far
+    off, which would refute it. The larger set of mutually consistent closures wins: from 5
+    nodes it overrules the first group (taken out, `overruled`) and the loop closes where it
+    truly is; from 3 nodes it is refuted and the first group stays, as before."""
+    truth = _square_loop()
+    g, by_loop = _drifted_square(truth), {}
+    wrong, none = _enter_group(g, by_loop, ((2, 150), (4, 152), (6, 154), (8, 156)), truth, shift_m=3.0)
+    assert not none and all(c.status == ACCEPTED for c in wrong)
+    assert float(np.hypot(*(g.poses[156, :2] - truth[156, :2]))) > 2.0  # the wrong group holds the end 3 m off
+    pairs = ((2, 158), (4, 159), (6, 160), (8, 161), (10, 162)) if later_nodes == 5 else ((2, 158), (6, 160), (10, 162))
+    right, overruled = _enter_group(g, by_loop, pairs, truth)
+    end_error = float(np.hypot(*(g.poses[150:165, :2] - truth[150:165, :2]).T).max())
+    if later_nodes > len(wrong):
+        assert overruled == wrong and all(c.status == OVERRULED for c in wrong)
+        assert all(c.status == ACCEPTED for c in right) and not any(g.active[c.loop_id] for c in wrong)
+        assert end_error < 0.5
+    else:
+        assert not overruled and all(c.status == REFUTED for c in right) and all(c.status == ACCEPTED for c in wrong)
+        assert all(g.active[c.loop_id] for c in wrong) and not any(g.active[c.loop_id] for c in right)
+        assert end_error > 2.0
+
+
+def test_a_group_does_not_overrule_one_that_other_closures_agree_with():
+    """As above, with 5 more closures taken in singly since the wrong group (matches that
+    confirmed the estimate it left): the correct group of 5 nodes outweighs the wrong group
+    but not the wrong group and those closures together, so it is refuted, and the graph keeps
+    every closure it had, at the same estimate."""
+    truth = _square_loop()
+    g, by_loop = _drifted_square(truth), {}
+    wrong, _ = _enter_group(g, by_loop, ((2, 150), (4, 152), (6, 154), (8, 156)), truth, shift_m=3.0)
+    agreeing, _ = _enter_group(g, by_loop, [(10 + i, 157 + i) for i in range(5)], truth, shift_m=3.0, in_group=False)
+    g.refresh()
+    kept = g.poses.copy()
+    right, overruled = _enter_group(g, by_loop, ((2, 158), (4, 159), (6, 160), (8, 161), (10, 162)), truth)
+    assert not overruled and all(c.status == REFUTED for c in right)
+    assert all(c.status == ACCEPTED and g.active[c.loop_id] for c in wrong + agreeing)
+    assert np.array_equal(g.poses, kept)
+
+
+def test_a_corridor_match_off_only_along_its_corridor_is_off_only_when_that_counts():
+    """`loops_off(..., free_along=...)`: a corridor match (sigma 10 m along x) 17 m off along
+    the corridor is off by its covariance, and not off where its along direction is free; 1 m
+    off across it is off either way."""
+    truth = np.column_stack([np.arange(40) * 0.5, np.zeros(40), np.zeros(40)])
+    g = PoseGraph(truth[0], GraphNoise(0.01, 0.02, 0.005, 0.02, 0.03, 0.01, "cauchy", 0.5))
+    for k in range(1, len(truth)):
+        g.add_node(se2_between(truth[k - 1], truth[k]))
+    along = np.diag([100.0, 1e-3, 1e-4])
+    ids = np.array([g.add_loop(0, 30, np.array([15.0 - 17.0, 0.0, 0.0]), along), g.add_loop(0, 30, np.array([15.0, 1.0, 0.0]), along)])
+    g.update()
+    assert list(g.loops_off(ids, 0.5, 0.15)) == [True, True]
+    assert list(g.loops_off(ids, 0.5, 0.15, free_along=np.array([True, True]))) == [False, True]
 
 
 # ---- end to end -------------------------------------------------------------------------------

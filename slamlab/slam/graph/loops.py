@@ -46,6 +46,7 @@ PENDING = "pending"
 INCONSISTENT = "inconsistent"  # no group of mutually consistent closures took it in time
 PRUNED = "pruned"  # accepted, then left far off by the optimised graph and dropped
 REFUTED = "refuted"  # a group that, optimised in, left earlier closures far off: taken out again
+OVERRULED = "overruled"  # of an earlier group that a later, larger group contradicted: taken out (`run._try_group`)
 
 WALL_MARGIN_M = 0.3  # a beam passing through a wall this close to its end (m) is not a contradiction
 AMBIGUITY_SEARCH = 0.9  # the second best is searched down to this share of the ambiguity ratio, then refined
@@ -83,6 +84,7 @@ class LoopCandidate:
     tied_m: float = 0.0  # how far (m of path) the node was from the submap since the graph last tied them
     along_line: bool = False  # as good elsewhere along a line (a corridor): its covariance holds nothing along it
     in_group: bool = False  # accepted as one of a group of mutually consistent closures (not alone)
+    group: int = -1  # with in_group: the node at which its group entered (the group's id)
     see_through: float = 0.0  # share of the scan's beams that pass through the submap's walls at the match
     free_ends: float = 0.0  # share of its beams that end where the submap saw free space
 

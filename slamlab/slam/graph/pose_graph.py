@@ -162,6 +162,14 @@ class PoseGraph:
         else:  # not in ISAM2 yet
             self._pending.remove((True, loop))
 
+    def revive_loop(self, loop: int) -> None:
+        """Put a closure `drop_loop` took out back into the graph (at the next `update`)."""
+        if self.active[loop]:
+            return
+        self.active[loop] = True
+        self._ties = None
+        self._pending.append((True, loop))
+
     # ---- solving
     def update(self) -> None:
         """Hand the new nodes and closures (and removals) to ISAM2; the newest node's estimate
@@ -212,11 +220,13 @@ class PoseGraph:
         for j in range(max(len(self.optimisations) - taken_back, 0), len(self.optimisations)):
             self.optimisations[j] = replace(self.optimisations[j], taken_back=True)
 
-    def loops_off(self, loops: np.ndarray, m: float, rad: float) -> np.ndarray:
+    def loops_off(self, loops: np.ndarray, m: float, rad: float, free_along: np.ndarray | None = None) -> np.ndarray:
         """(L,) bool: which of `loops` (ids) the current estimate leaves more than `m` metres or
         `rad` radians off where they pin the pose: r^T (C + diag(m^2, m^2, rad^2))^-1 r > 1,
         r the residual, C the closure's covariance (a corridor match's residual along the
-        corridor, where its covariance is metres wide, does not count)."""
+        corridor, where its covariance is metres wide, counts only past those metres).
+        `free_along` (L,) bool: for these (corridor matches) the residual along the
+        covariance's widest direction does not count at all."""
         if len(loops) == 0:
             return np.zeros(0, dtype=bool)
         a = np.array([self.loops[j][0] for j in loops])
@@ -226,6 +236,10 @@ class PoseGraph:
         d[:, 2] = wrap_angle(d[:, 2])
         cov = np.array([self.loop_cov[j] for j in loops]) + np.diag([m**2, m**2, rad**2])
         q = mahalanobis_sq(d, cov)
+        if free_along is not None and np.any(free_along):
+            w, v = np.linalg.eigh(cov[free_along])  # ascending eigenvalues: the last is along the corridor
+            r = np.einsum("nij,ni->nj", v, d[free_along])[:, :2]  # the residual in the two pinned directions
+            q[free_along] = np.sum(r**2 / w[:, :2], axis=1)
         return q > 1.0
 
     # ---- internals

@@ -13,7 +13,8 @@ Per processed step k (the same steps as the particle filters, `steps.*`):
    submaps in reach (`loops.LoopSearch`); candidates go through the verifier
    (`verify.ClosureVerifier`): one that confirms the estimate enters alone and the graph is
    updated incrementally (ISAM2), a group asking for a correction is optimised in as a whole
-   (`_try_group`); closures the optimum leaves far off are dropped;
+   (`_try_group`: refuted if it breaks the closures the graph held, unless those are an earlier
+   group from fewer nodes, which it then overrules); closures the optimum leaves far off are dropped;
 5. when the graph puts node k `redraw_m` / `redraw_rad` away from the online map, that map is
    drawn again from the graph (`redraw_poses`: in the graph's frame, or laid rigidly on the
    online map's with `redraw_frame=online`); the online (causal) pose of step k is local SLAM's.
@@ -46,7 +47,7 @@ from slamlab.slam.graph import GraphFilter
 from slamlab.slam.graph.final_match import match_on_final_map
 from slamlab.slam.graph.local import LocalSlam
 from slamlab.slam.graph.particles import ParticleTracker
-from slamlab.slam.graph.loops import ACCEPTED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings, WindowPolicy
+from slamlab.slam.graph.loops import ACCEPTED, OVERRULED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings, WindowPolicy
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.small_linalg import sym_eig
 from slamlab.slam.graph.submaps import Submaps
@@ -160,7 +161,10 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
             cand.loop_id = graph.add_loop(cand.anchor, cand.node, cand.relative, cand.covariance)
             by_loop[cand.loop_id] = cand
         if group:  # a correction: the whole graph with it, kept only if the closures before it still hold
-            opt_s = _try_group(graph, by_loop, group, s, k)
+            opt_s, overruled = _try_group(graph, by_loop, group, s, k)
+            for cand in overruled:  # they no longer tie their node to their submap
+                if not cand.along_line:
+                    tied.remove_closure(cand.node, cand.anchor, path_m)
         else:
             graph.update()
             if k % REFRESH_EVERY == 0:
@@ -296,6 +300,16 @@ class TiedSubmaps:
         self.closures.append((pn, pa))
         np.minimum(self.best, np.abs(pa - self.anchor_path) - pn, out=self.best)
 
+    def remove_closure(self, node: int, anchor: int, path_m: FloatArray) -> None:
+        """An accepted closure taken out again (`_overrule`): every submap's term recomputed
+        from the closures that remain."""
+        self.closures.remove((float(path_m[node]), float(path_m[anchor])))
+        self.best = -self.anchor_path
+        if self.closures:
+            c = np.array(self.closures)
+            terms = np.abs(c[:, 1][None, :] - self.anchor_path[:, None]) - c[:, 0][None, :]
+            self.best = np.minimum(self.best, terms.min(axis=1))
+
     def drift(self, k: int, path_m: FloatArray) -> FloatArray:
         """(S,) the distance for node k to each finished submap (m)."""
         return path_m[k] + self.best
@@ -380,7 +394,8 @@ def _apart(a: FloatArray, b: FloatArray, m: float, rad: float) -> bool:
     return bool(np.hypot(d[0], d[1]) > m or abs(d[2]) > rad)
 
 
-def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[LoopCandidate], s, k: int) -> float:
+def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[LoopCandidate], s, k: int
+               ) -> tuple[float, list[LoopCandidate]]:
     """A group of closures asking for a correction, already added to the graph: the whole
     graph optimised with them, the group first taken in as it says (`PoseGraph.optimise_batch`
     with the group trusted: under the robust loss alone a correction of a metre or more stays
@@ -396,7 +411,10 @@ def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[
     7 m off, taken in, left the top-left corridor's closure of 210 s earlier 7 m off, and the
     corridor stayed doubled). So when it leaves any far off, the group and those closures are
     tried together, all taken in as they say, from the estimate before the group: if that
-    leaves none of them far off, it stands. Returns seconds."""
+    leaves none of them far off, it stands.
+
+    Before a refutation, the group is tried against the earlier groups it contradicts
+    (`_overrule`). Returns seconds and the closures the group overruled."""
     t0 = time.perf_counter()
     ids = {c.loop_id for c in group}
     before = np.array([j for j in np.flatnonzero(graph.active) if j not in ids], dtype=np.int64)
@@ -415,7 +433,10 @@ def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[
             log.debug("node %d: a group of %d closures in with the %d earlier closures it left off alone", k, len(group), len(off))
             off = off[:0]
     broken = len(off)
+    overruled: list[LoopCandidate] = []
     if broken > max(REFUTE_MIN, REFUTE_SHARE * len(before)):
+        overruled = _overrule(graph, by_loop, group, off, before, kept, s, k)
+    if broken > max(REFUTE_MIN, REFUTE_SHARE * len(before)) and not overruled:
         for c in group:
             graph.drop_loop(c.loop_id)
             c.status = REFUTED
@@ -424,7 +445,49 @@ def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[
     else:
         _prune_and_reoptimise(graph, by_loop, s.prune_m, s.prune_rad)
         log.debug("node %d: a group of %d closures in (%d earlier closures off)", k, len(group), broken)
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, overruled
+
+
+def _overrule(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[LoopCandidate], off: np.ndarray,
+              before: np.ndarray, kept: FloatArray, s, k: int) -> list[LoopCandidate]:
+    """A group that would be refuted because it leaves the closures `off` far off, tried
+    against the earlier groups among them: the largest set of mutually consistent closures
+    wins (Mangelson et al. 2018), so an earlier group of closures from fewer nodes that the
+    new group contradicts, where nothing else does, was the mistake. The trial: those groups
+    taken out whole, the graph optimised from `kept` (the estimate before the new group) with
+    the new group taken in as it says; it stands when that leaves no more of the other
+    earlier closures far off than a refutation allows (a corridor match counted only across
+    its corridor and in yaw: it says nothing along it), and the groups' closures become
+    `overruled`. Otherwise everything goes back as it was and the caller refutes the new
+    group. Why: a group formed from two metres of a first pass down a corridor, into an older
+    pass of the other half of that corridor (the true place not mapped yet, so no second best
+    could show the alias), held a simulated short-range lidar's map 16 m off to the end; the
+    groups that came back to the true place were each refuted for breaking it (sim_carmen.py
+    `--lidar urg`, world 1, 0.25 m steps). Returns the closures it overruled (none: it did not)."""
+    rivals = {by_loop[int(j)].group for j in off if by_loop[int(j)].in_group}
+    if not rivals:
+        return []
+    theirs = np.array([j for j in before if by_loop[int(j)].in_group and by_loop[int(j)].group in rivals], dtype=np.int64)
+    if len({c.node for c in group}) <= len({by_loop[int(j)].node for j in theirs}):
+        return []  # the earlier groups hold as many nodes: the new one does not outweigh them
+    trials = len(graph.optimisations)
+    for j in theirs:
+        graph.drop_loop(int(j))
+    graph.restore(kept)
+    graph.optimise_batch(trusted={c.loop_id for c in group})
+    rest = np.setdiff1d(before, theirs)
+    along = np.array([by_loop[int(j)].along_line for j in rest], dtype=bool)
+    still = int(graph.loops_off(rest, s.prune_m, s.prune_rad, free_along=along).sum())
+    if still > max(REFUTE_MIN, REFUTE_SHARE * len(rest)):
+        for j in theirs:
+            graph.revive_loop(int(j))
+        graph.restore(kept, taken_back=len(graph.optimisations) - trials)
+        log.debug("node %d: a group of %d closures cannot overrule groups %s: %d other closures would break", k, len(group), sorted(rivals), still)
+        return []
+    for j in theirs:
+        by_loop[int(j)].status = OVERRULED
+    log.debug("node %d: a group of %d closures overrules %d closures of groups %s (%d other closures off)", k, len(group), len(theirs), sorted(rivals), still)
+    return [by_loop[int(j)] for j in theirs]
 
 
 def _prune(graph: PoseGraph, by_loop: dict[int, LoopCandidate], prune_m: float, prune_rad: float) -> bool:

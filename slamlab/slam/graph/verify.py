@@ -22,6 +22,9 @@ to end. Two tests decide, besides the ambiguity test of the search itself:
   enough to see something else. Matches of consecutive scans in one old submap are not
   independent: where that submap saw the robot's true place only at its far edge, a place a
   period along the corridor fits every one of them better, and they agree.
+A group that enters can still be wrong (the true place not mapped yet, so nothing else could
+disagree); a later group that contradicts it, from more nodes, and contradicts nothing else,
+takes it out again (`run._overrule`).
 """
 
 from __future__ import annotations
@@ -244,6 +247,7 @@ class ClosureVerifier:
                 for c in group:
                     c.status = ACCEPTED
                     c.in_group = True
+                    c.group = node
                 accepted.extend(group)
                 self.pending = [c for c in self.pending if c.status == PENDING]
         return accepted
