@@ -344,7 +344,9 @@ def closures_table(candidates: list[LoopCandidate], graph: PoseGraph, node_times
     node_x/y (m): the node's estimate when searched; match_x/y: where the match put it then;
     moved_m: how far it asked the node to move; final_x/y and anchor_x/y: the node's and the
     anchor's optimised positions (the closure drawn on the map); residual_m: how far the
-    final graph is from it; sigma_along_m: its largest translation sigma (a corridor's length)."""
+    final graph is from it; sigma_along_m: its largest translation sigma (a corridor's length);
+    see_through and free_ends: the shares of the node's beams that, at the match, pass through
+    the submap's walls or end where it saw free space."""
     if not candidates:
         return Table({})
     nodes = np.array([c.node for c in candidates])
@@ -364,6 +366,7 @@ def closures_table(candidates: list[LoopCandidate], graph: PoseGraph, node_times
         "moved_m": np.hypot(match_pose[:, 0] - node_pose[:, 0], match_pose[:, 1] - node_pose[:, 1]),
         "final_x": final[nodes, 0], "final_y": final[nodes, 1], "anchor_x": final[anchors, 0], "anchor_y": final[anchors, 1],
         "residual_m": residual, "sigma_along_m": np.array([float(np.sqrt(sym_eig(np.ascontiguousarray(c.covariance[:2, :2]))[0][-1])) for c in candidates]),
+        "see_through": np.array([c.see_through for c in candidates]), "free_ends": np.array([c.free_ends for c in candidates]),
     })
 
 
