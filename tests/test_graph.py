@@ -24,7 +24,7 @@ from slamlab.eval.relations import relation_errors
 from slamlab.geometry import se2_between, se2_compose
 from slamlab.slam.engine import run_slam
 from slamlab.slam.graph.branch_bound import NO_EXCLUSION, CorrelativeSearch, SearchGrid, SearchWindow, bnb_search, exhaustive_search, max_pool_levels, place_points, top_bounds
-from slamlab.slam.graph.loops import ACCEPTED, OVERRULED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings
+from slamlab.slam.graph.loops import ACCEPTED, EDGE, OVERRULED, PENDING, PRUNED, REFUTED, LoopCandidate, LoopSearch, SearchSettings, at_window_edge
 from slamlab.slam.graph.pose_graph import GraphNoise, PoseGraph
 from slamlab.slam.graph.submaps import search_grid_of
 from slamlab.slam.grid import OccupancyGrid
@@ -755,6 +755,38 @@ def test_the_screen_scores_the_submap_a_scan_was_taken_in_above_another_place():
     assert scores[1] > 0.85 and scores[1] > scores[0] + 0.2
     assert len(search.screen(query[:5], submaps, [(junction_sm, pose, 10.0, math.pi)])) == 1  # too few points: no score
     assert search.screen(query[:5], submaps, [(junction_sm, pose, 10.0, math.pi)])[0] == -1.0
+
+
+@pytest.mark.parametrize("shift_m, half_m, status", [(3.0, 3.0, EDGE), (3.0, 4.0, PENDING), (0.0, 3.0, PENDING)])
+def test_a_match_on_the_edge_of_its_window_is_set_aside(shift_m, half_m, status):
+    """A scan taken in the junction at (57, 0.2), the estimate `shift_m` behind along the
+    corridor, searched +-`half_m`: the true place is found in every case, but where it lies on
+    the window's edge the search cannot tell it from a score still rising beyond the window,
+    and the candidate is set aside (`edge`); inside the window it waits for its group."""
+    submaps, junction = _two_place_submaps()
+    truth = np.array([57.0, 0.2, 0.0])
+    poses = np.array([(-2.0, -1.0, 0.3), (0.0, -2.0, 0.5), (55.0, 0.0, 0.0), (59.0, 0.0, 1.2)])
+    query = _wall_points(junction, truth)
+    estimate = truth - np.array([shift_m, 0.0, 0.0])
+    search = LoopSearch(SearchSettings(0.1, 6, 0.3, 0.5, 0.9, 1.0, 0.35, 2, 30.0), 0.05, 4, 0.03, 0.01)
+    anchors = submaps.finished_anchor
+    reach = search.submaps_in_reach(estimate, submaps, poses[anchors], np.tile([half_m, 0.3], (len(anchors), 1)), np.full(len(anchors), 100.0))
+    [found] = search.search(9, estimate, query, query, np.zeros(2), submaps, reach, poses)
+    assert found.submap == 1 and np.hypot(*(found.match_pose[:2] - truth[:2])) < 0.1
+    assert found.status == status
+
+
+def test_the_window_edge_is_the_drift_windows_not_the_submaps_area():
+    """`at_window_edge`: within one search cell of the window +-5 m around (10, 10) in x or y,
+    on a side the submap's area (x and y 0..40 m, or x 0..12 m) did not cut."""
+    wide = SimpleNamespace(shape=(800, 800), origin=np.zeros(2), resolution_m=0.05)
+    narrow = SimpleNamespace(shape=(800, 240), origin=np.zeros(2), resolution_m=0.05)  # x 0..12 m
+    guess = np.array([10.0, 10.0, 0.0])
+    assert at_window_edge(np.array([14.95, 10.0]), wide, guess, 5.0, 0.1)
+    assert at_window_edge(np.array([10.0, 5.05]), wide, guess, 5.0, 0.1)
+    assert not at_window_edge(np.array([14.85, 10.0]), wide, guess, 5.0, 0.1)
+    assert not at_window_edge(np.array([11.95, 10.0]), narrow, guess, 5.0, 0.1)  # the map's edge, not the window's
+    assert at_window_edge(np.array([5.0, 10.0]), narrow, guess, 5.0, 0.1)
 
 
 def test_a_wide_search_takes_the_untied_submaps_the_screen_scores_best_not_the_nearest(monkeypatch):

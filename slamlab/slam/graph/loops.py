@@ -11,7 +11,11 @@ nearest others: `LoopSearch.submaps_in_reach`, `max_submaps_per_node`):
    matches as well the wrong way round, and such a match says nothing. Where the other pose
    differs by a shift alone (a corridor slid along its length) the match still says where the
    robot is across the corridor and how it is turned: it stays, with no weight along that line;
-4. what passes is a candidate closure: the node's pose seen from the submap's anchor node.
+4. a full match (not one along a line) whose best pose lies on the edge of its window, on a
+   side the submap's area did not cut, is set aside (`edge`): the window is the drift the
+   estimate can have, and a best found on its edge is no peak, since the score may still rise
+   beyond it (an older pass of a corridor's other half, the true place not mapped yet);
+5. what passes is a candidate closure: the node's pose seen from the submap's anchor node.
 From a wide window (a long loop's return, `screen_resolution_m` set) the loop candidates are
 not the nearest untied submaps but the `screen_keep` of them whose coarse search (0.4 m cells,
 a few points) scores best: after tens of metres of drift the estimate is nearer to other
@@ -46,6 +50,7 @@ PENDING = "pending"
 INCONSISTENT = "inconsistent"  # no group of mutually consistent closures took it in time
 PRUNED = "pruned"  # accepted, then left far off by the optimised graph and dropped
 REFUTED = "refuted"  # a group that, optimised in, left earlier closures far off: taken out again
+EDGE = "edge"  # a full match whose best pose lay on the edge of the drift window (see module doc)
 OVERRULED = "overruled"  # of an earlier group that a later, larger group contradicted: taken out (`run._try_group`)
 
 WALL_MARGIN_M = 0.3  # a beam passing through a wall this close to its end (m) is not a contradiction
@@ -248,6 +253,8 @@ class LoopSearch:
                         along = _along_line(refined_pose, other_pose, s.ambiguity_rad / 2)
                         if along is None:
                             status = AMBIGUOUS
+                if status == PENDING and along is None and at_window_edge(best.pose, sm, guess, half_xy, s.resolution_m):
+                    status = EDGE
             through, free_end, _ = contradictions(state_u8, field_u8, float(sm.origin[0]), float(sm.origin[1]), 1.0 / sm.resolution_m,
                                                   float(refined_pose[0]), float(refined_pose[1]), float(refined_pose[2]),
                                                   np.ascontiguousarray(own, dtype=np.float64), float(origin[0]), float(origin[1]),
@@ -302,6 +309,20 @@ def _window_in(sm: FinishedSubmap, guess: FloatArray, half_xy: float, half_yaw: 
         return None
     centre = (lo + hi) / 2
     return SearchWindow(np.array([centre[0], centre[1], guess[2]]), float(hi[0] - lo[0]) / 2, float(hi[1] - lo[1]) / 2, half_yaw)
+
+
+def at_window_edge(pose: FloatArray, sm: FinishedSubmap, guess: FloatArray, half_xy: float, cell_m: float) -> bool:
+    """Whether a search's best `pose` (submap frame, m) lies within one search cell (`cell_m`)
+    of the edge of the window +-`half_xy` around `guess`, on a side the submap's area did not
+    cut (`_window_in`): an edge of the drift the estimate can have, not of the map."""
+    H, W = sm.shape
+    area_lo = np.asarray(sm.origin, dtype=np.float64)
+    area_hi = area_lo + np.array([W, H]) * sm.resolution_m
+    for a in (0, 1):
+        lo, hi = float(guess[a]) - half_xy, float(guess[a]) + half_xy
+        if (lo > area_lo[a] and pose[a] <= lo + cell_m) or (hi < area_hi[a] and pose[a] >= hi - cell_m):
+            return True
+    return False
 
 
 def _along_line(best: FloatArray, other: FloatArray, max_yaw_rad: float) -> FloatArray | None:
