@@ -2,7 +2,7 @@
 project has, with `+experiment=lidar2d` (CARMEN logs) or `+experiment=sim_loops`.
 
     .venv/bin/python benchmarks/bench_graph.py [--only logs,probes,sim_loops,hospital,timing] [--filters course,rbpf,graph] [--steps 0.5,0.25] [--jitter -0.02,0,0.02]
-                                              [--jobs 2] [--out DIR] [--set KEY=VALUE ...]
+                                              [--lidars sick,urg,utm,sick_half] [--jobs 2] [--out DIR] [--set KEY=VALUE ...]
 
 - logs: Intel and ACES at the preset's steps (0.5 m / 0.5 rad) and at half of them (`--steps`: any
   list, e.g. 0.15,0.25,0.35,0.5,0.75,1.0 for robustness to the step a user picks); mean
@@ -12,8 +12,11 @@ project has, with `+experiment=lidar2d` (CARMEN logs) or `+experiment=sim_loops`
   -0.02,0,0.02` runs every step also 2 cm / 0.02 rad finer and coarser: other scans become steps,
   the graph's nearest thing to another seed (its worst over those is its robustness).
 - probes: the FR079-like corridor probe (benchmarks/sim_carmen.py: the `loops` building at 2x
-  and 3x, worlds 0-3; wheel odometry drifting tens of metres; written once into OUT/probes):
-  relation error, smoothed and causal, and of the loop relations alone.
+  and 3x, worlds 0-3; wheel odometry drifting tens of metres; written once into OUT/probes), at
+  each of `--steps`: relation error, smoothed and causal, and of the loop relations alone.
+  `--lidars` adds other lidars at 2x (`sim_carmen.LIDARS`: urg, utm, sick_half): the whole
+  robustness matrix, 40 runs at two steps (~25 min on 2 cores), is
+  `--only probes --filters graph --lidars sick,urg,utm,sick_half`.
 - sim_loops: `+experiment=sim_loops` at world_scale 1.5 and 2.0, dataset seeds 0-4
   (`texture=none report=false`): ATE RMSE unaligned and aligned, smoothed and causal (budget:
   worst <= 0.10 m unaligned, <= 0.05 m aligned).
@@ -94,28 +97,33 @@ def logs(out: Path, n_jobs: int, filters: tuple[str, ...], steps: tuple[float, .
     print(g.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
 
 
-def probes(out: Path, n_jobs: int, filters: tuple[str, ...]) -> None:
+def probes(out: Path, n_jobs: int, filters: tuple[str, ...], steps: tuple[float, ...], lidars: tuple[str, ...] = ("sick",)) -> None:
     folder = out / "probes"
     clfs = []
-    for scale in (2.0, 3.0):
-        for world in range(4):
-            clf = folder / f"loops{scale:g}x_w{world}.clf"
-            if not clf.is_file():
-                sim_carmen.write_log(folder, scale, world, 0, 300, sim_carmen.ODOM["yaw_bias_deg_per_m"])
-            clfs.append((scale, world, clf))
-    jobs = [({"scale": s, "world": w, "filter": flt}, ["+experiment=lidar2d", f"filter={flt}", f"dataset.path={clf}"])
-            for s, w, clf in clfs for flt in filters]
+    for lidar in lidars:
+        for scale in (2.0, 3.0) if lidar == "sick" else (2.0,):
+            for world in range(4):
+                stem = f"loops{scale:g}x_w{world}" + ("" if lidar == "sick" else f"_{lidar}")
+                clf = folder / f"{stem}.clf"
+                if not clf.is_file():
+                    sim_carmen.write_log(folder, scale, world, 0, 300, sim_carmen.ODOM["yaw_bias_deg_per_m"], lidar)
+                clfs.append((lidar, scale, world, clf))
+    jobs = [({"lidar": lidar, "scale": s, "step": st, "world": w, "filter": flt},
+             ["+experiment=lidar2d", f"filter={flt}", f"dataset.path={clf}", f"steps.min_distance_m={st}", f"steps.min_angle_rad={st}"])
+            for st in steps for lidar, s, w, clf in clfs for flt in filters]
     rows = [{**r["job"], **_rel(r), **_common(r)} for r in bench_filters._many(jobs, out / "probe-runs", n_jobs)]
     _runs_and_worst(pd.DataFrame(rows), "corridor probe (sim_carmen): relation error per run (m)", "corridor probe: over the four worlds", 4,
-                    mean_smoothed_m=("smoothed_m", "mean"), worst_smoothed_m=("smoothed_m", "max"), mean_causal_m=("causal_m", "mean"),
-                    worst_causal_m=("causal_m", "max"), worst_loop_m=("smoothed_loop_m", "max"))
+                    ["lidar", "scale", "step", "filter"], mean_smoothed_m=("smoothed_m", "mean"), worst_smoothed_m=("smoothed_m", "max"),
+                    mean_causal_m=("causal_m", "mean"), worst_causal_m=("causal_m", "max"), worst_loop_m=("smoothed_loop_m", "max"))
 
 
-def _runs_and_worst(df: pd.DataFrame, runs_title: str, worst_title: str, digits: int, **aggregates: tuple[str, str]) -> None:
-    """Print every run, then the runs grouped by scale and filter (`aggregates` as pandas' named aggregation)."""
+def _runs_and_worst(df: pd.DataFrame, runs_title: str, worst_title: str, digits: int, by: list[str] | None = None,
+                    **aggregates: tuple[str, str]) -> None:
+    """Print every run, then the runs grouped `by` (scale and filter unless said; `aggregates`
+    as pandas' named aggregation)."""
     print(f"\n## {runs_title}")
     print(df.to_string(index=False, float_format=lambda v: f"{v:.{digits}f}"))
-    g = df.groupby(["scale", "filter"]).agg(**aggregates).reset_index()
+    g = df.groupby(by or ["scale", "filter"]).agg(**aggregates).reset_index()
     print(f"\n## {worst_title}")
     print(g.to_string(index=False, float_format=lambda v: f"{v:.{digits}f}"))
 
@@ -192,10 +200,11 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", type=Path, default=None, help="keep the run folders (and the probe logs) here")
     ap.add_argument("--steps", default=f"{PRESET_STEP},{PRESET_STEP / 2}",
-                    help="logs: step thresholds (m and rad), comma list; the budget's are the preset's and half of them, "
+                    help="logs and probes: step thresholds (m and rad), comma list; the budget's are the preset's and half of them, "
                          "robustness: 0.15,0.25,0.35,0.5,0.75,1.0")
     ap.add_argument("--jitter", default="0", help="logs: offsets (m and rad) added to each step, comma list, each a run of its own "
                     "counted in the step's worst and mean: e.g. -0.02,0,0.02 (the graph has no seed; which scans become steps is its chance)")
+    ap.add_argument("--lidars", default="sick", help="probes: the lidars (sim_carmen.LIDARS); the SICK at 2x and 3x, the others at 2x")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a config override added to every run")
     args = ap.parse_args()
     bench_filters.EXTRA_OVERRIDES.extend(args.set)
@@ -212,7 +221,7 @@ def main() -> None:
         if "logs" in parts:
             logs(out, args.jobs, filters, tuple(float(v) for v in args.steps.split(",")), tuple(float(v) for v in args.jitter.split(",")))
         if "probes" in parts:
-            probes(out, args.jobs, filters)
+            probes(out, args.jobs, filters, tuple(float(v) for v in args.steps.split(",")), tuple(args.lidars.split(",")))
         if "sim_loops" in parts:
             sim_loops(out, args.jobs, filters)
 
