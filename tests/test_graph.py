@@ -519,7 +519,12 @@ def test_a_later_larger_group_overrules_an_earlier_group_it_contradicts(later_no
     assert not none and all(c.status == ACCEPTED for c in wrong)
     assert float(np.hypot(*(g.poses[156, :2] - truth[156, :2]))) > 2.0  # the wrong group holds the end 3 m off
     pairs = ((2, 158), (4, 159), (6, 160), (8, 161), (10, 162)) if later_nodes == 5 else ((2, 158), (6, 160), (10, 162))
+    n_before = len(g.optimisations)
     right, overruled = _enter_group(g, by_loop, pairs, truth)
+    trials = g.optimisations[n_before:]
+    # only what stands counts (metrics.json `largest_correction_m`): the first trial (the group alone) is discarded either
+    # way, and a refuted group's every trial
+    assert trials[0].taken_back and all(o.taken_back for o in trials) == (later_nodes <= len(wrong))
     end_error = float(np.hypot(*(g.poses[150:165, :2] - truth[150:165, :2]).T).max())
     if later_nodes > len(wrong):
         assert overruled == wrong and all(c.status == OVERRULED for c in wrong)
@@ -787,6 +792,12 @@ def test_the_window_edge_is_the_drift_windows_not_the_submaps_area():
     assert not at_window_edge(np.array([14.85, 10.0]), wide, guess, 5.0, 0.1)
     assert not at_window_edge(np.array([11.95, 10.0]), narrow, guess, 5.0, 0.1)  # the map's edge, not the window's
     assert at_window_edge(np.array([5.0, 10.0]), narrow, guess, 5.0, 0.1)
+    # the area ending where the window does (x 0..15 m, or 5..45 m): a best there lies on the map's edge, not the drift's
+    flush_hi = SimpleNamespace(shape=(800, 300), origin=np.zeros(2), resolution_m=0.05)
+    flush_lo = SimpleNamespace(shape=(800, 800), origin=np.array([5.0, 0.0]), resolution_m=0.05)
+    assert not at_window_edge(np.array([14.95, 10.0]), flush_hi, guess, 5.0, 0.1)
+    assert not at_window_edge(np.array([5.05, 10.0]), flush_lo, guess, 5.0, 0.1)
+    assert at_window_edge(np.array([10.0, 14.95]), flush_hi, guess, 5.0, 0.1)  # y is not cut there
 
 
 def test_a_wide_search_takes_the_untied_submaps_the_screen_scores_best_not_the_nearest(monkeypatch):

@@ -36,7 +36,7 @@ import gtsam
 import numpy as np
 
 from slamlab.geometry import FloatArray, se2_between, se2_compose, wrap_angle
-from slamlab.slam.graph.small_linalg import mahalanobis_sq
+from slamlab.slam.graph.small_linalg import mahalanobis_sq, sym_eig
 
 
 @dataclass(frozen=True, slots=True)
@@ -236,10 +236,14 @@ class PoseGraph:
         d[:, 2] = wrap_angle(d[:, 2])
         cov = np.array([self.loop_cov[j] for j in loops]) + np.diag([m**2, m**2, rad**2])
         q = mahalanobis_sq(d, cov)
-        if free_along is not None and np.any(free_along):
-            w, v = np.linalg.eigh(cov[free_along])  # ascending eigenvalues: the last is along the corridor
-            r = np.einsum("nij,ni->nj", v, d[free_along])[:, :2]  # the residual in the two pinned directions
-            q[free_along] = np.sum(r**2 / w[:, :2], axis=1)
+        if free_along is not None:
+            for j in np.flatnonzero(free_along):
+                # sym_eig, not np.linalg.eigh (OpenBLAS's kernels differ per CPU: small_linalg); eigenvalues ascending, the
+                # last along the corridor; the residual counted in the two pinned directions only, summed in a fixed order
+                w, v = sym_eig(cov[j])
+                r0 = d[j, 0] * v[0, 0] + d[j, 1] * v[1, 0] + d[j, 2] * v[2, 0]
+                r1 = d[j, 0] * v[0, 1] + d[j, 1] * v[1, 1] + d[j, 2] * v[2, 1]
+                q[j] = r0 * r0 / w[0] + r1 * r1 / w[1]
         return q > 1.0
 
     # ---- internals

@@ -340,7 +340,8 @@ def _search_loops(k: int, query: FloatArray, own: FloatArray, origin: FloatArray
 def closures_table(candidates: list[LoopCandidate], graph: PoseGraph, node_times: FloatArray, final: FloatArray) -> Table:
     """loops.csv (docs/RUN_DIRECTORY.md): one row per loop candidate the search found, in the
     order found. t and t_anchor (s): the node's and the submap anchor's scan times; status
-    (accepted, ambiguous, weak, inconsistent, pruned); the scores; window_m and tied_m;
+    (`loops.py`'s statuses: accepted, ambiguous, weak, edge, inconsistent, pruned, refuted,
+    overruled); the scores; window_m and tied_m;
     node_x/y (m): the node's estimate when searched; match_x/y: where the match put it then;
     moved_m: how far it asked the node to move; final_x/y and anchor_x/y: the node's and the
     anchor's optimised positions (the closure drawn on the map); residual_m: how far the
@@ -438,7 +439,7 @@ def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[
     broken = len(off)
     overruled: list[LoopCandidate] = []
     if broken > max(REFUTE_MIN, REFUTE_SHARE * len(before)):
-        overruled = _overrule(graph, by_loop, group, off, before, kept, s, k)
+        overruled = _overrule(graph, by_loop, group, off, before, kept, trials, s, k)
     if broken > max(REFUTE_MIN, REFUTE_SHARE * len(before)) and not overruled:
         for c in group:
             graph.drop_loop(c.loop_id)
@@ -452,7 +453,7 @@ def _try_group(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[
 
 
 def _overrule(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[LoopCandidate], off: np.ndarray,
-              before: np.ndarray, kept: FloatArray, s, k: int) -> list[LoopCandidate]:
+              before: np.ndarray, kept: FloatArray, since: int, s, k: int) -> list[LoopCandidate]:
     """A group that would be refuted because it leaves the closures `off` far off, tried
     against the earlier groups among them: the largest set of mutually consistent closures
     wins (Mangelson et al. 2018), so an earlier group of closures from fewer nodes that the
@@ -466,7 +467,9 @@ def _overrule(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[L
     pass of the other half of that corridor (the true place not mapped yet, so no second best
     could show the alias), held a simulated short-range lidar's map 16 m off to the end; the
     groups that came back to the true place were each refuted for breaking it (sim_carmen.py
-    `--lidar urg`, world 1, 0.25 m steps). Returns the closures it overruled (none: it did not)."""
+    `--lidar urg`, world 1, 0.25 m steps). `since`: how many optimisations the graph had before
+    the new group's first trial (those after it are discarded here: marked taken back). Returns
+    the closures it overruled (none: it did not)."""
     rivals = {by_loop[int(j)].group for j in off if by_loop[int(j)].in_group}
     if not rivals:
         return []
@@ -476,7 +479,7 @@ def _overrule(graph: PoseGraph, by_loop: dict[int, LoopCandidate], group: list[L
     trials = len(graph.optimisations)
     for j in theirs:
         graph.drop_loop(int(j))
-    graph.restore(kept)
+    graph.restore(kept, taken_back=len(graph.optimisations) - since)  # the new group's trials so far are discarded
     graph.optimise_batch(trusted={c.loop_id for c in group})
     rest = np.setdiff1d(before, theirs)
     along = np.array([by_loop[int(j)].along_line for j in rest], dtype=bool)

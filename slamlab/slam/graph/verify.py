@@ -23,7 +23,8 @@ to end. Two tests decide, besides the ambiguity test of the search itself:
   independent: where that submap saw the robot's true place only at its far edge, a place a
   period along the corridor fits every one of them better, and they agree.
 A group that enters can still be wrong (the true place not mapped yet, so nothing else could
-disagree); a later group that contradicts it, from more nodes, and contradicts nothing else,
+disagree); a later group that contradicts it, from more nodes, and with it out breaks no more
+other closures than a refutation allows (corridor matches counted only across their corridor),
 takes it out again (`run._overrule`).
 """
 
