@@ -117,6 +117,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
 
     between_scans = BetweenScans(step_scans, len(scans), project, lambda batch: batch)
     tied = TiedSubmaps()
+    tying: list[LoopCandidate] = []  # the accepted closures that tie their node to their submap (`tied`), in the order tied
     by_loop: dict[int, LoopCandidate] = {}  # the candidate behind each closure of the graph
     first_scan = None
     wide_until_m = -np.inf  # while a correction waits for its group, wide windows are searched from every node up to this path (m)
@@ -161,10 +162,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
             cand.loop_id = graph.add_loop(cand.anchor, cand.node, cand.relative, cand.covariance)
             by_loop[cand.loop_id] = cand
         if group:  # a correction: the whole graph with it, kept only if the closures before it still hold
-            opt_s, overruled = _try_group(graph, by_loop, group, s, k)
-            for cand in overruled:  # they no longer tie their node to their submap
-                if not cand.along_line:
-                    tied.remove_closure(cand.node, cand.anchor, path_m)
+            opt_s, _ = _try_group(graph, by_loop, group, s, k)
         else:
             graph.update()
             if k % REFRESH_EVERY == 0:
@@ -174,9 +172,15 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
                     graph.update()
                     graph.refresh()
                 opt_s = time.perf_counter() - t1
+        untied = [cand for cand in tying if cand.status != ACCEPTED]
+        for cand in untied:  # pruned or overruled since: no longer a tie between its node and its submap
+            tied.remove_closure(cand.node, cand.anchor, path_m)
+        if untied:
+            tying = [cand for cand in tying if cand.status == ACCEPTED]
         for cand in accepted:
             if cand.status == ACCEPTED and not cand.along_line:  # a corridor match leaves the place along it open: no tie
                 tied.add_closure(cand.node, cand.anchor, path_m)
+                tying.append(cand)
         if tracker.whole:
             on_map[k] = tracker.online
             redraw = redraw_poses(graph.poses[: k + 1], on_map[: k + 1], laid, s.redraw_frame, s.redraw_m, s.redraw_rad)
