@@ -25,6 +25,7 @@ from slamlab.io.tum import write_tum
 from slamlab.datasets.sim import calib as simcalib
 from slamlab.datasets.sim import truth as simtruth
 from slamlab.datasets.sim.kinect import camera_rays, render_depth, render_rgb, rgb_to_ir
+from slamlab.datasets.sim.people import walking_people
 from slamlab.datasets.sim.sensors import (
     BEAM_RES_RAD,
     sensor_poses,
@@ -84,41 +85,8 @@ def _cache_key(params: SimParams, calib: KinectCalibration) -> str:
 
 
 def _people(params: SimParams, world: World, t_rel: np.ndarray) -> np.ndarray:
-    """(len(t), P, 4) cylinders [x, y, radius 0.25 m, height 1.75 m]: people pacing up and
-    down the corridor legs at 0.6-1.0 m/s, 0.9 m to the side of the robot's route (ring), or
-    along a corridor between two junctions, 0.65 m to either side of its centre line (loops:
-    `World.lanes`; clear of the route and of everything standing in the corridor)."""
-    p = params.n_people
-    out = np.zeros((t_rel.size, p, 4))
-    if p == 0:
-        return out
-    rng = np.random.default_rng([params.seed, 505])
-    if world.lanes:
-        for j in range(p):
-            (ax, ay), (bx, by) = world.lanes[int(rng.integers(0, len(world.lanes)))]
-            off = 0.65 * (1.0 if rng.random() < 0.5 else -1.0)
-            a = np.array([ax, ay]) + (np.array([0.0, off]) if ay == by else np.array([off, 0.0]))
-            b = a + np.array([bx - ax, by - ay])
-            length = float(np.linalg.norm(b - a))
-            speed = rng.uniform(0.6, 1.0)
-            s = (rng.uniform(0, 2 * length) + speed * t_rel) % (2 * length)
-            s = np.where(s > length, 2 * length - s, s) / length
-            out[:, j, :2] = a + s[:, None] * (b - a)
-            out[:, j, 2] = 0.25
-            out[:, j, 3] = 1.75
-        return out
-    (x0, y0), (x1, y1) = world.loop_min, world.loop_max
-    legs = [((x0, y0 - 0.9), (x1, y0 - 0.9)), ((x1 + 0.9, y0), (x1 + 0.9, y1)), ((x1, y1 + 0.9), (x0, y1 + 0.9)), ((x0 - 0.9, y1), (x0 - 0.9, y0))]
-    for j in range(p):
-        a, b = (np.array(v) for v in legs[int(rng.integers(0, 4))])
-        length = float(np.linalg.norm(b - a))
-        speed = rng.uniform(0.6, 1.0)
-        s = (rng.uniform(0, 2 * length) + speed * t_rel) % (2 * length)
-        s = np.where(s > length, 2 * length - s, s) / length  # walk there and back
-        out[:, j, :2] = a + s[:, None] * (b - a)
-        out[:, j, 2] = 0.25
-        out[:, j, 3] = 1.75
-    return out
+    """The sequence's `n_people` walking people at the times `t_rel` (`people.walking_people`)."""
+    return walking_people(world, params.n_people, params.seed, t_rel)
 
 
 def simulate_truth(params: SimParams) -> tuple[World, Motion, np.ndarray]:
