@@ -16,7 +16,8 @@ project has, with `+experiment=lidar2d` (CARMEN logs) or `+experiment=sim_loops`
   each of `--steps`: relation error, smoothed and causal, and of the loop relations alone.
   `--lidars` adds other lidars at 2x (`sim_carmen.LIDARS`: urg, utm, sick_half): the whole
   robustness matrix, 40 runs at two steps (~25 min on 2 cores), is
-  `--only probes --filters graph --lidars sick,urg,utm,sick_half`.
+  `--only probes --filters graph --lidars sick,urg,utm,sick_half`. `--people N` has N people walk
+  every probe's corridors (moving obstacles the map must not keep).
 - sim_loops: `+experiment=sim_loops` at world_scale 1.5 and 2.0, dataset seeds 0-4
   (`texture=none report=false`): ATE RMSE unaligned and aligned, smoothed and causal (budget:
   worst <= 0.10 m unaligned, <= 0.05 m aligned).
@@ -97,23 +98,24 @@ def logs(out: Path, n_jobs: int, filters: tuple[str, ...], steps: tuple[float, .
     print(g.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
 
 
-def probes(out: Path, n_jobs: int, filters: tuple[str, ...], steps: tuple[float, ...], lidars: tuple[str, ...] = ("sick",)) -> None:
+def probes(out: Path, n_jobs: int, filters: tuple[str, ...], steps: tuple[float, ...], lidars: tuple[str, ...] = ("sick",),
+           people: int = 0) -> None:
     folder = out / "probes"
     clfs = []
     for lidar in lidars:
         for scale in (2.0, 3.0) if lidar == "sick" else (2.0,):
             for world in range(4):
-                stem = f"loops{scale:g}x_w{world}" + ("" if lidar == "sick" else f"_{lidar}")
+                stem = sim_carmen.log_stem(scale, world, lidar, people)
                 clf = folder / f"{stem}.clf"
                 if not clf.is_file():
-                    sim_carmen.write_log(folder, scale, world, 0, 300, sim_carmen.ODOM["yaw_bias_deg_per_m"], lidar)
+                    sim_carmen.write_log(folder, scale, world, 0, 300, sim_carmen.ODOM["yaw_bias_deg_per_m"], lidar, people)
                 clfs.append((lidar, scale, world, clf))
-    jobs = [({"lidar": lidar, "scale": s, "step": st, "world": w, "filter": flt},
+    jobs = [({"lidar": lidar, "people": people, "scale": s, "step": st, "world": w, "filter": flt},
              ["+experiment=lidar2d", f"filter={flt}", f"dataset.path={clf}", f"steps.min_distance_m={st}", f"steps.min_angle_rad={st}"])
             for st in steps for lidar, s, w, clf in clfs for flt in filters]
     rows = [{**r["job"], **_rel(r), **_common(r)} for r in bench_filters._many(jobs, out / "probe-runs", n_jobs)]
     _runs_and_worst(pd.DataFrame(rows), "corridor probe (sim_carmen): relation error per run (m)", "corridor probe: over the four worlds", 4,
-                    ["lidar", "scale", "step", "filter"], mean_smoothed_m=("smoothed_m", "mean"), worst_smoothed_m=("smoothed_m", "max"),
+                    ["lidar", "people", "scale", "step", "filter"], mean_smoothed_m=("smoothed_m", "mean"), worst_smoothed_m=("smoothed_m", "max"),
                     mean_causal_m=("causal_m", "mean"), worst_causal_m=("causal_m", "max"), worst_loop_m=("smoothed_loop_m", "max"))
 
 
@@ -205,6 +207,7 @@ def main() -> None:
     ap.add_argument("--jitter", default="0", help="logs: offsets (m and rad) added to each step, comma list, each a run of its own "
                     "counted in the step's worst and mean: e.g. -0.02,0,0.02 (the graph has no seed; which scans become steps is its chance)")
     ap.add_argument("--lidars", default="sick", help="probes: the lidars (sim_carmen.LIDARS); the SICK at 2x and 3x, the others at 2x")
+    ap.add_argument("--people", type=int, default=0, help="probes: people walking the corridors of every probe log (sim_carmen --people)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a config override added to every run")
     args = ap.parse_args()
     bench_filters.EXTRA_OVERRIDES.extend(args.set)
@@ -221,7 +224,7 @@ def main() -> None:
         if "logs" in parts:
             logs(out, args.jobs, filters, tuple(float(v) for v in args.steps.split(",")), tuple(float(v) for v in args.jitter.split(",")))
         if "probes" in parts:
-            probes(out, args.jobs, filters, tuple(float(v) for v in args.steps.split(",")), tuple(args.lidars.split(",")))
+            probes(out, args.jobs, filters, tuple(float(v) for v in args.steps.split(",")), tuple(args.lidars.split(",")), args.people)
         if "sim_loops" in parts:
             sim_loops(out, args.jobs, filters)
 

@@ -17,6 +17,8 @@ the scans (`<stem>_truth.tum`). `--lidar` swaps the SICK for another kind of 2D 
 bring (`LIDARS`: a SICK at half-degree steps, a 270-degree 30 m Hokuyo, a 240-degree 5.6 m
 one, a 360-degree 12 m one), written as ROBOTLASER1 records with their own geometry: beam
 spacing, range and field of view are what a log we do not have is most likely to differ in.
+`--people N` has N people walk the corridors (`slamlab.datasets.sim.people`: moving cylinders
+the lidar sees, as in any building by day), which the map must not keep.
 
     .venv/bin/python benchmarks/sim_carmen.py --scale 2.0 --world-seed 0 [--out /tmp/simcarmen]
     .venv/bin/python benchmarks/sim_carmen.py --scale 2.0 --world-seed 0 --run --filter-seeds 0,1,2 [OVERRIDE ...]
@@ -47,6 +49,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial import cKDTree
 
+from slamlab.datasets.sim.people import walking_people
 from slamlab.datasets.sim.raycast import cast_scans
 from slamlab.datasets.sim.sensors import simulate_odometry
 from slamlab.datasets.sim.trajectory import (
@@ -127,8 +130,8 @@ def true_motion(route: np.ndarray) -> Motion:
                   roll=zero, pitch=zero, neck_yaw=zero, head_pitch=zero)  # fmt: skip
 
 
-def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float, lidar: Lidar = LIDARS["sick"]) -> SimLog:
-    """The whole log in memory (see the module doc)."""
+def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float, lidar: Lidar = LIDARS["sick"], people: int = 0) -> SimLog:
+    """The whole log in memory (see the module doc); `people` walk the corridors (`walking_people`, seeded by the world)."""
     world = build_world(world_seed, n_clutter=40, texture_res_m=0.05, scale=scale, layout="loops")
     motion = true_motion(world.route)
     odom_fine = simulate_odometry(motion, seed, **{**ODOM, "yaw_bias_deg_per_m": yaw_bias_deg_per_m})
@@ -140,7 +143,7 @@ def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float
     T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -s, s, c
     T[:, 2, 2] = T[:, 3, 3] = 1.0
     T[:, 0, 3], T[:, 1, 3], T[:, 2, 3] = truth[:, 0], truth[:, 1], LIDAR_Z_M
-    r, ids = cast_scans(T, lidar.angles, world.boxes, np.zeros((ts.size, 0, 4)), lidar.max_m)
+    r, ids = cast_scans(T, lidar.angles, world.boxes, walking_people(world, people, world_seed, ts), lidar.max_m)
     rng = np.random.default_rng([seed, 505])
     r = np.round(r + rng.normal(0.0, RANGE_SIGMA_M, r.shape), 2)  # noise, 1 cm steps
     r[(ids == -1) | (r > lidar.max_m) | (r <= 0.0)] = lidar.no_return_m
@@ -213,11 +216,18 @@ def relations_text(t: np.ndarray, truth: np.ndarray, local: np.ndarray, loop: np
     return "\n".join(rows(local) + [loop_head] + rows(loop)) + "\n"
 
 
-def write_log(out: Path, scale: float, world_seed: int, seed: int, n_loop: int, yaw_bias_deg_per_m: float, lidar: str = "sick") -> Path:
+def log_stem(scale: float, world_seed: int, lidar: str = "sick", people: int = 0) -> str:
+    """The probe log's file stem: `loops{scale}x_w{world}`, then `_{lidar}` but for the SICK and `_p{people}` when people walk."""
+    return f"loops{scale:g}x_w{world_seed}" + ("" if lidar == "sick" else f"_{lidar}") + (f"_p{people}" if people else "")
+
+
+def write_log(out: Path, scale: float, world_seed: int, seed: int, n_loop: int, yaw_bias_deg_per_m: float, lidar: str = "sick",
+              people: int = 0) -> Path:
     """Simulate and write `loops{scale}x_w{world_seed}.clf` (with `_{lidar}` before the suffix but
-    for the SICK), `.relations` and `_truth.tum` into `out`; print a summary; return the log's path."""
-    log = simulate(scale, world_seed, seed, yaw_bias_deg_per_m, LIDARS[lidar])
-    stem = f"loops{scale:g}x_w{world_seed}" + ("" if lidar == "sick" else f"_{lidar}")
+    for the SICK, and `_p{people}` when people walk), `.relations` and `_truth.tum` into `out`; print a
+    summary; return the log's path."""
+    log = simulate(scale, world_seed, seed, yaw_bias_deg_per_m, LIDARS[lidar], people)
+    stem = log_stem(scale, world_seed, lidar, people)
     out.mkdir(parents=True, exist_ok=True)
     local, loop = make_relations(log.t, log.truth, seed, n_loop)
     write_text(out / f"{stem}.clf", clf_text(log, LIDARS[lidar]))
@@ -296,13 +306,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--loop-relations", type=int, default=300, help="how many loop relations at most")
     ap.add_argument("--yaw-bias-deg-per-m", type=float, default=ODOM["yaw_bias_deg_per_m"], help="odometry yaw bias")
     ap.add_argument("--lidar", choices=sorted(LIDARS), default="sick", help="the lidar's kind (LIDARS: beams, field of view, range)")
+    ap.add_argument("--people", type=int, default=0, help="people walking the corridors (moving 0.5 m cylinders), as in a building by day")
     ap.add_argument("--run", action="store_true", help="run +experiment=lidar2d on the log")
     ap.add_argument("--filter-seeds", default="0,1,2", help="comma-separated filter seeds for --run")
     ap.add_argument("overrides", nargs="*", help="Hydra overrides added to every run (e.g. matcher.max_gap_m=0)")
     args = ap.parse_args(argv)
 
     worlds = [int(w) for w in args.world_seeds.split(",") if w.strip()] if args.world_seeds else [args.world_seed]
-    clfs = {w: write_log(args.out, args.scale, w, args.seed, args.loop_relations, args.yaw_bias_deg_per_m, args.lidar)
+    clfs = {w: write_log(args.out, args.scale, w, args.seed, args.loop_relations, args.yaw_bias_deg_per_m, args.lidar, args.people)
             for w in worlds}
     if not args.run:
         return 0

@@ -63,6 +63,20 @@ def test_a_lidar_with_its_own_geometry_is_written_as_robotlaser1_and_reads_back(
     assert want[hit].max() <= urg.max_m
 
 
+def test_people_walking_the_corridors_cut_some_beams_short_and_leave_the_rest_and_the_truth_as_they_were():
+    still = sim_carmen.simulate(1.0, 0, 0, 1.0)
+    busy = sim_carmen.simulate(1.0, 0, 0, 1.0, people=6)
+    assert np.array_equal(busy.truth, still.truth) and np.array_equal(busy.odom, still.odom)
+    walls = still.ranges < sim_carmen.LIDARS["sick"].no_return_m
+    changed = np.abs(busy.ranges - still.ranges) > 0.05  # beyond the range noise
+    # a person stands in front of a wall: a beam only ever gets shorter, and most stay as they were
+    assert (busy.ranges[changed & walls] < still.ranges[changed & walls]).all()
+    assert 0.002 < changed.mean() < 0.1 and changed.any(axis=1).mean() > 0.2
+    # the log's name says so, and the same people walk again for the same world
+    assert sim_carmen.log_stem(2.0, 1, "sick", 6) == "loops2x_w1_p6" and sim_carmen.log_stem(2.0, 1) == "loops2x_w1"
+    assert np.array_equal(sim_carmen.simulate(1.0, 0, 0, 1.0, people=6).ranges, busy.ranges)
+
+
 def test_the_summary_line_names_the_mean_the_worst_run_and_the_failures():
     import pandas as pd
 
