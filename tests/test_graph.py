@@ -893,3 +893,39 @@ def test_the_final_match_changes_the_smoothed_path_only_and_brings_it_closer(loo
     assert on.extras["graph"]["final_match_s"] > 0 and off.extras["graph"]["final_match_s"] == 0
     err = [relation_errors(r.times, r.trajectory, loop_log.relations, loop_min_dt_s=sim_carmen.LOOP_MIN_DT_S)["trans_abs_mean_m"] for r in (on, off)]
     assert err[0] < err[1]
+
+
+def test_hits_near_the_lidar_stay_out_of_the_online_map_and_its_redraw_but_not_out_of_the_submaps():
+    # A person 0.5 m beside the robot and a wall 3 m ahead, each a dense row of hits.
+    from slamlab.slam.graph.local import LocalSlam
+    from slamlab.slam.graph.submaps import Submaps
+    from slamlab.slam.grid import MapSettings
+    from slamlab.slam.matcher import LikelihoodFieldMatcher
+    from slamlab.slam.scan import ScanPoints
+
+    person = np.stack([np.linspace(-0.2, 0.2, 9), np.full(9, -0.5)], axis=1)
+    wall = np.stack([np.full(41, 3.0), np.linspace(-1.0, 1.0, 41)], axis=1)
+    scan = ScanPoints(xy=np.concatenate([person, wall]), origin=np.zeros(2))
+    matcher, ms = LikelihoodFieldMatcher(), MapSettings()
+
+    def online_and_submap(near_hits_m: float) -> tuple[LocalSlam, OccupancyGrid]:
+        submaps = Submaps(ms, 4, matcher.field_sigma_m, matcher.field_radius_m)
+        local = LocalSlam(matcher, ms, submaps, "map", np.zeros(3), near_hits_m=near_hits_m)
+        local.insert(0, scan)
+        return local, submaps.matching().grid
+
+    def occupied_at(grid: OccupancyGrid, xy: np.ndarray) -> np.ndarray:
+        r, c = grid.cells(xy)
+        return grid.log_odds[r, c] > ms.occupied_threshold
+
+    local, submap = online_and_submap(0.0)  # off: every hit in every map
+    assert occupied_at(local.grid, person).all() and occupied_at(local.grid, wall).all()
+    local, submap = online_and_submap(0.7)
+    assert not occupied_at(local.grid, person).any() and occupied_at(local.grid, wall).all()
+    assert occupied_at(submap, person).all()  # the submaps (the loop search's targets) keep them
+    local.redraw([scan], np.zeros((1, 3)))  # drawn again from the node: the same hits left out
+    assert not occupied_at(local.grid, person).any() and occupied_at(local.grid, wall).all()
+    from slamlab.config.slam import GraphFilterConfig  # a negative distance is the user's mistake, named
+
+    with pytest.raises(ConfigError, match="filter.near_hits_m"):
+        GraphFilterConfig(near_hits_m=-0.5)

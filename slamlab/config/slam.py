@@ -336,6 +336,13 @@ class GraphFilterConfig:
     # Intel (worst 0.0206 -> 0.0186 m at 0.5 m steps) and sim_loops 2.0 (mean ATE over seeds 0-9 0.30 -> 0.21 m), but the
     # online path worse on both logs (ACES worst causal 0.045 -> 0.071 m: its online heading drifts 1-4 degrees before
     # the loop closes, against under 1), and a corridor probe lost a loop
+    near_hits_m: float = 0.0  # local_map=map: scan hits nearer than this to the lidar (m) stay out of the online map and its
+    # redraws (the submaps and the final map keep them; 0 = none left out). Why: a person walking beside the robot leaves
+    # hits beside its path that a forward-looking lidar does not see through again, and local SLAM holds the robot back
+    # against them (0.8 m in 1.5 s on a corridor probe). 0.7 measured (2026-12-01, `bench_graph.py --people 12`,
+    # benchmarks/RESULTS.md): probes with 12 people at 0.25 m steps worst smoothed 0.50 -> 0.13 m, at 0.5 0.072 -> 0.095;
+    # without people the same; Intel / ACES smoothed / causal 0.0180 / 0.0181 -> 0.0183 / 0.0180 and 0.0357 / 0.0453 ->
+    # 0.0364 / 0.0477 at 0.5 m steps, ACES causal 0.048 -> 0.066 at 0.25. Off in the preset: for logs with people close by
     redraw_m: float = 0.15  # local_map=map: when the graph puts the robot this far (m) or redraw_rad from where the
     redraw_rad: float = 0.035  # local map has it, the map is drawn again from the graph (the online pose jumps to the graph's).
     # 0.15 against 0.3 (bench_graph.py, 2026-11-29): ACES worst causal 0.0399 / 0.0382 m at 0.5 / 0.25 m steps (0.0417 /
@@ -450,7 +457,7 @@ class GraphFilterConfig:
         for name in ("search_resolution_m", "window_max_m", "ambiguity_m", "ambiguity_rad", "loop_sigma_m", "loop_sigma_rad", "trust_m", "trust_rad", "redraw_m", "redraw_rad",
                      "local_sigma_m", "local_sigma_rad", "loss_scale", "prune_m", "prune_rad", "consistency_m", "consistency_rad"):
             require_positive(g, name, getattr(self, name))
-        for name in ("local_yaw_half_width_rad", "screen_resolution_m", "window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "query_m", "loop_min_path_m", "group_extent_m", "group_span_m",
+        for name in ("near_hits_m", "local_yaw_half_width_rad", "screen_resolution_m", "window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "query_m", "loop_min_path_m", "group_extent_m", "group_span_m",
                      "consistency_per_m", "consistency_rad_per_m", "local_sigma_per_m", "local_sigma_per_rad", "local_sigma_along_per_m", "local_slip_per_m"):
             require_nonnegative(g, name, getattr(self, name))
         for name in ("min_score", "min_refined_score", "ambiguity_ratio"):

@@ -93,7 +93,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
         tracker: LocalSlam = ParticleTracker(matcher, ms, submaps, start, c.particles, c.motion, c.weighting, c.resampler, c.seed, s.online)
     else:
         wide = matcher.with_yaw_window(s.local_yaw_half_width_rad) if s.local_yaw_half_width_rad > matcher.yaw_half_width_rad else None
-        tracker = LocalSlam(matcher, ms, submaps, s.local_map, start, c.motion.scale_gain_per_m, wide, s.wall_at == "hits")
+        tracker = LocalSlam(matcher, ms, submaps, s.local_map, start, c.motion.scale_gain_per_m, wide, s.wall_at == "hits", s.near_hits_m)
     graph = PoseGraph(start, GraphNoise(s.local_sigma_m, s.local_sigma_per_m, s.local_sigma_rad, s.local_sigma_per_rad,
                                         s.loop_sigma_m, s.loop_sigma_rad, s.loss, s.loss_scale, s.local_sigma_along_per_m))
     search = LoopSearch(SearchSettings(s.search_resolution_m, s.search_levels, s.min_score, s.min_refined_score,
