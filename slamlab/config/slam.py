@@ -342,8 +342,9 @@ class GraphFilterConfig:
     # against them (0.8 m in 1.5 s on a corridor probe). 0.7 measured (2026-12-01, `bench_graph.py --people 12`,
     # benchmarks/RESULTS.md): probes with 12 people at 0.25 m steps worst smoothed 0.50 -> 0.13 m, at 0.5 0.072 -> 0.091;
     # without people, sim_loops and the hospital's consistency the same; Intel / ACES smoothed within 1 mm, but Intel's
-    # online path worse at 0.15, 0.35 and 0.75 m steps (causal 0.022 -> 0.041, 0.020 -> 0.056, 0.053 -> 0.073). So off
-    # by default: for logs with people walking close to the robot, at fine steps
+    # online path worse at 0.15, 0.35 and 0.75 m steps (causal 0.022 -> 0.041, 0.020 -> 0.056, 0.053 -> 0.073); at 0.5
+    # Intel is as before but a people probe lost its map (2.77 m). So off by default: for logs with people walking
+    # close to the robot, at fine steps
     redraw_m: float = 0.15  # local_map=map: when the graph puts the robot this far (m) or redraw_rad from where the
     redraw_rad: float = 0.035  # local map has it, the map is drawn again from the graph (the online pose jumps to the graph's).
     # 0.15 against 0.3 (bench_graph.py, 2026-11-29): ACES worst causal 0.0399 / 0.0382 m at 0.5 / 0.25 m steps (0.0417 /
