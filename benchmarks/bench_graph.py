@@ -210,6 +210,8 @@ def main() -> None:
     ap.add_argument("--people", type=int, default=0, help="probes: people walking the corridors of every probe log (sim_carmen --people)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a config override added to every run")
     args = ap.parse_args()
+    if args.people < 0:
+        ap.error(f"--people must be 0 or more, got {args.people}")
     bench_filters.EXTRA_OVERRIDES.extend(args.set)
     filters = tuple(args.filters.split(","))
     parts = args.only.split(",")

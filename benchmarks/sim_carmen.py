@@ -311,6 +311,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--filter-seeds", default="0,1,2", help="comma-separated filter seeds for --run")
     ap.add_argument("overrides", nargs="*", help="Hydra overrides added to every run (e.g. matcher.max_gap_m=0)")
     args = ap.parse_args(argv)
+    if args.people < 0:
+        ap.error(f"--people must be 0 or more, got {args.people}")
 
     worlds = [int(w) for w in args.world_seeds.split(",") if w.strip()] if args.world_seeds else [args.world_seed]
     clfs = {w: write_log(args.out, args.scale, w, args.seed, args.loop_relations, args.yaw_bias_deg_per_m, args.lidar, args.people)
