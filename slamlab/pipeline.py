@@ -162,6 +162,7 @@ def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> RunMet
         # MB held by the map(s): shared tiles counted once (rbpf); at the end and at peak
         map_memory={k: v for k, v in result.extras.items() if k.startswith("map_")},
         odometry_scale=result.extras.get("odometry_scale"),
+        odometry_jumps=result.extras.get("odometry_jumps") or None,  # absent when the odometry never jumped
         graph=result.extras.get("graph"),
     )
 

@@ -106,7 +106,8 @@ def run_slam(
 
 def _run_filter(sequence: Sequence, c: Components, progress: Callable[[int, int], None] | None) -> SlamResult:
     """`run_slam`'s work."""
-    scans, times, odom, step_scans = plan_steps(sequence, c)
+    plan = plan_steps(sequence, c)
+    scans, times, odom, step_scans = plan.scans, plan.times, plan.odometry, plan.step_scans
     n_steps = len(step_scans)
     slam = c.mode == "slam"
     n = 1 if c.mode == "odometry" else c.particles
@@ -265,6 +266,7 @@ def _run_filter(sequence: Sequence, c: Components, progress: Callable[[int, int]
             "neff_mean": float(np.mean(rows["neff"])),
             "neff_min": float(np.min(rows["neff"])),
             "filter": c.filter.name,
+            "odometry_jumps": [jump.as_dict() for jump in plan.odometry_jumps if jump.scan < len(odom)],
             **({} if scales is None else {"odometry_scale": rows["odometry_scale"][-1]}),
             "matcher_map_reads": int(c.matcher.map_reads) if slam else 0,
             **map_memory,

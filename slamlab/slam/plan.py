@@ -3,8 +3,8 @@ it processes.
 
 - `Components`: the checked pieces of one run, built once at the application edge
   (`slamlab.assemble`) from the config groups;
-- `plan_steps`: the scans of the run (`steps.max_scans`), their times and odometry, and the
-  processed steps (`steps.select_steps`, cut at `steps.max_steps`);
+- `plan_steps`: the scans of the run (`steps.max_scans`), their times and odometry (its jumps
+  bridged: `slam.odometry_jumps`), and the processed steps (`steps.select_steps`, cut at `steps.max_steps`);
 - `BetweenScans`: the scans between two processed steps, projected and prepared a chunk of
   steps at a time (`steps.between=match`).
 The particle filters' loop (`slam.engine`) and the graph's (`slam.graph.run`) both start here.
@@ -12,6 +12,7 @@ The particle filters' loop (`slam.engine`) and the graph's (`slam.graph.run`) bo
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,10 +26,14 @@ from slamlab.slam.filters import FilterKind
 from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import MatchPoints, Matcher
 from slamlab.slam.motion import MotionModel
+from slamlab.slam.odometry_jumps import OdometryJump, bridge_jumps, find_jumps
 from slamlab.slam.resample import Resampler
 from slamlab.slam.scan import ScanBatch
 from slamlab.slam.steps import select_steps
 from slamlab.slam.weighting import Weighting
+
+log = logging.getLogger(__name__)
+MAX_JUMPS_LOGGED = 5  # warnings for the first jumps; metrics.json lists them all
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,6 +51,8 @@ class Components:
     max_scans: int | None
     max_steps: int | None
     between: str
+    odom_jump_m: float
+    odom_jump_rad: float
     motion: MotionModel
     weighting: Weighting
     resampler: Resampler
@@ -56,20 +63,41 @@ class Components:
     record_replay: bool
 
 
-def plan_steps(sequence: Sequence, c: Components) -> tuple[list[ScanFrame], FloatArray, FloatArray, np.ndarray]:
-    """(scans, times (N,) s, odometry (N, 3), processed scan indices (K,)) of a run: the first
-    `steps.max_scans` scans, and with `steps.max_steps` the scans up to the last processed one."""
+@dataclass(frozen=True, slots=True)
+class StepPlan:
+    """The scans of a run and which of them its filter processes (`plan_steps`)."""
+
+    scans: list[ScanFrame]
+    times: FloatArray  # (N,) s, file order
+    odometry: FloatArray  # (N, 3) x m, y m, theta rad: the log's, its jumps bridged (`odometry_jumps`)
+    step_scans: np.ndarray  # (K,) indices of the processed scans
+    odometry_jumps: list[OdometryJump]  # the jumps taken as no motion (`steps.odom_jump_m` / `odom_jump_rad`)
+
+
+def plan_steps(sequence: Sequence, c: Components) -> StepPlan:
+    """The scans of a run: the first `steps.max_scans` scans, and with `steps.max_steps` the
+    scans up to the last processed one; their odometry with each jump taken as no motion
+    (`slam.odometry_jumps`, each named in a warning)."""
     scans = sequence.scans if c.max_scans is None else sequence.scans[: c.max_scans]
     if not scans:
         raise ConfigError("steps.max_scans", f"sequence {sequence.name!r} has no scans to process")
     times = scan_times(scans)
     odom = scan_odometry(scans)
+    jumps = find_jumps(odom, times, c.odom_jump_m, c.odom_jump_rad)
+    for jump in jumps[:MAX_JUMPS_LOGGED]:
+        log.warning("%s: the odometry jumps %.2f m and %.1f deg between scans %d and %d (t = %.3f s), more than a robot moves "
+                    "between two scans (steps.odom_jump_m=%g, steps.odom_jump_rad=%g): taken as a reset of its frame, not as motion",
+                    sequence.name, jump.m, np.degrees(jump.rad), jump.scan - 1, jump.scan, jump.t_s, c.odom_jump_m, c.odom_jump_rad)
+    if len(jumps) > MAX_JUMPS_LOGGED:
+        log.warning("%s: %d more odometry jumps taken as resets (metrics.json: odometry_jumps)", sequence.name, len(jumps) - MAX_JUMPS_LOGGED)
+    odom = bridge_jumps(odom, jumps)
     step_scans = select_steps(odom, c.every, c.min_distance_m, c.min_angle_rad, c.skip_static_start)
     if c.max_steps is not None and len(step_scans) > c.max_steps:
         # the run ends at its last processed scan (max_steps=1: the first scan's map alone)
         step_scans = step_scans[: c.max_steps]
         scans, times, odom = scans[: step_scans[-1] + 1], times[: step_scans[-1] + 1], odom[: step_scans[-1] + 1]
-    return scans, times, odom, step_scans
+        jumps = [jump for jump in jumps if jump.scan <= step_scans[-1]]
+    return StepPlan(scans, times, odom, step_scans, jumps)
 
 
 class BetweenScans:

@@ -78,7 +78,8 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
     matcher = c.matcher
     if not isinstance(matcher, LikelihoodFieldMatcher):
         raise ConfigError("matcher", "filter=graph matches into submaps with a likelihood field: use matcher=likelihood")
-    scans, times, odom, step_scans = plan_steps(sequence, c)
+    plan = plan_steps(sequence, c)
+    scans, times, odom, step_scans = plan.scans, plan.times, plan.odometry, plan.step_scans
     n_steps = len(step_scans)
     ms = c.map
     min_r, max_r = range_limits(ms, sequence)
@@ -249,6 +250,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
             "neff_mean": 1.0,
             "neff_min": 1.0,
             "filter": f.name,
+            "odometry_jumps": [jump.as_dict() for jump in plan.odometry_jumps if jump.scan < len(odom)],
             "matcher_map_reads": int(matcher.map_reads) + (int(tracker.step_matcher.map_reads) if tracker.step_matcher is not matcher else 0),
             "map_mb": map_mb,
             "map_peak_mb": submaps.peak_mb,
