@@ -99,23 +99,23 @@ def logs(out: Path, n_jobs: int, filters: tuple[str, ...], steps: tuple[float, .
 
 
 def probes(out: Path, n_jobs: int, filters: tuple[str, ...], steps: tuple[float, ...], lidars: tuple[str, ...] = ("sick",),
-           people: int = 0) -> None:
+           people: int = 0, defect: str = "") -> None:
     folder = out / "probes"
     clfs = []
     for lidar in lidars:
         for scale in (2.0, 3.0) if lidar == "sick" else (2.0,):
             for world in range(4):
-                stem = sim_carmen.log_stem(scale, world, lidar, people)
+                stem = sim_carmen.log_stem(scale, world, lidar, people, defect)
                 clf = folder / f"{stem}.clf"
                 if not clf.is_file():
-                    sim_carmen.write_log(folder, scale, world, 0, 300, sim_carmen.ODOM["yaw_bias_deg_per_m"], lidar, people)
+                    sim_carmen.write_log(folder, scale, world, 0, 300, sim_carmen.ODOM["yaw_bias_deg_per_m"], lidar, people, defect)
                 clfs.append((lidar, scale, world, clf))
-    jobs = [({"lidar": lidar, "people": people, "scale": s, "step": st, "world": w, "filter": flt},
+    jobs = [({"lidar": lidar, "people": people, "defect": defect or "-", "scale": s, "step": st, "world": w, "filter": flt},
              ["+experiment=lidar2d", f"filter={flt}", f"dataset.path={clf}", f"steps.min_distance_m={st}", f"steps.min_angle_rad={st}"])
             for st in steps for lidar, s, w, clf in clfs for flt in filters]
     rows = [{**r["job"], **_rel(r), **_common(r)} for r in bench_filters._many(jobs, out / "probe-runs", n_jobs)]
     _runs_and_worst(pd.DataFrame(rows), "corridor probe (sim_carmen): relation error per run (m)", "corridor probe: over the four worlds", 4,
-                    ["lidar", "people", "scale", "step", "filter"], mean_smoothed_m=("smoothed_m", "mean"), worst_smoothed_m=("smoothed_m", "max"),
+                    ["lidar", "people", "defect", "scale", "step", "filter"], mean_smoothed_m=("smoothed_m", "mean"), worst_smoothed_m=("smoothed_m", "max"),
                     mean_causal_m=("causal_m", "mean"), worst_causal_m=("causal_m", "max"), worst_loop_m=("smoothed_loop_m", "max"))
 
 
@@ -208,6 +208,7 @@ def main() -> None:
                     "counted in the step's worst and mean: e.g. -0.02,0,0.02 (the graph has no seed; which scans become steps is its chance)")
     ap.add_argument("--lidars", default="sick", help="probes: the lidars (sim_carmen.LIDARS); the SICK at 2x and 3x, the others at 2x")
     ap.add_argument("--people", type=int, default=0, help="probes: people walking the corridors of every probe log (sim_carmen --people)")
+    ap.add_argument("--defect", choices=sorted(sim_carmen.DEFECTS), default="", help="probes: every probe log with this defect (sim_carmen --defect)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a config override added to every run")
     args = ap.parse_args()
     if args.people < 0:
@@ -226,7 +227,7 @@ def main() -> None:
         if "logs" in parts:
             logs(out, args.jobs, filters, tuple(float(v) for v in args.steps.split(",")), tuple(float(v) for v in args.jitter.split(",")))
         if "probes" in parts:
-            probes(out, args.jobs, filters, tuple(float(v) for v in args.steps.split(",")), tuple(args.lidars.split(",")), args.people)
+            probes(out, args.jobs, filters, tuple(float(v) for v in args.steps.split(",")), tuple(args.lidars.split(",")), args.people, args.defect)
         if "sim_loops" in parts:
             sim_loops(out, args.jobs, filters)
 

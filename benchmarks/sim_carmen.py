@@ -19,6 +19,8 @@ one, a 360-degree 12 m one), written as ROBOTLASER1 records with their own geome
 spacing, range and field of view are what a log we do not have is most likely to differ in.
 `--people N` has N people walk the corridors (`slamlab.datasets.sim.people`: moving cylinders
 the lidar sees, as in any building by day), which the map must not keep.
+`--defect KIND` gives the log one of the defects real logs have (`DEFECTS`: an odometry reset, a
+gap, frozen odometry, a lidar dropout, duplicated records, spurious short returns).
 
     .venv/bin/python benchmarks/sim_carmen.py --scale 2.0 --world-seed 0 [--out /tmp/simcarmen]
     .venv/bin/python benchmarks/sim_carmen.py --scale 2.0 --world-seed 0 --run --filter-seeds 0,1,2 [OVERRIDE ...]
@@ -41,7 +43,7 @@ import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import NamedTuple
 
@@ -57,7 +59,7 @@ from slamlab.datasets.sim.trajectory import (
 )
 from slamlab.datasets.sim.world import build_world
 from slamlab.eval.relations import find_times
-from slamlab.geometry import se2_between, wrap_angle
+from slamlab.geometry import se2_between, se2_compose, se2_inverse, wrap_angle
 from slamlab.io.atomic import write_text
 from slamlab.io.rundir import RunFile
 from slamlab.io.tum import read_tum, write_tum
@@ -156,6 +158,63 @@ def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float
                   odom_t=T0 + to, odom_pose=odom_pose, odom_vel=vel)  # fmt: skip
 
 
+# Defects real logs have (`--defect`), each at a fixed share of the log so that every world gets it on its route.
+DEFECTS = {
+    "reset": "the odometry re-zeroed in a new frame halfway (a base driver restarting, two recordings stitched)",
+    "gap": "10 s of records missing at 55 % of the log (the robot drives on, nothing is logged)",
+    "freeze": "the odometry frozen for 10 s at 35 % of the log, then catching up in one step (stale odometry messages)",
+    "dropout": "the lidar returning nothing for 20 s at 35 % of the log (every beam at its no-return value)",
+    "duplicates": "every 50th laser record written twice",
+    "spikes": "2 % of the readings random short returns (0.05-3 m: dust, spray, a loose cable)",
+}
+
+
+def with_defect(log: SimLog, defect: str, lidar: Lidar) -> SimLog:
+    """`log` with one of `DEFECTS` (seeded: the same log gives the same defect)."""
+    n = log.t.size
+    t0 = log.t[0]
+    rel = log.t - t0
+    if defect == "reset":
+        j = n // 2
+        zero = se2_inverse(log.odom[j])  # takes the odometry at scan j onto the origin
+        odom = log.odom.copy()
+        odom[j:] = se2_compose(zero, log.odom[j:])
+        late = log.odom_t >= log.t[j]
+        odom_pose = log.odom_pose.copy()
+        odom_pose[late] = se2_compose(zero, log.odom_pose[late])
+        return replace(log, odom=odom, odom_pose=odom_pose)
+    if defect == "gap":
+        start = rel[int(0.55 * n)]
+        keep = (rel < start) | (rel >= start + 10.0)
+        keep_o = (log.odom_t - t0 < start) | (log.odom_t - t0 >= start + 10.0)
+        return replace(log, t=log.t[keep], truth=log.truth[keep], odom=log.odom[keep], ranges=log.ranges[keep],
+                       odom_t=log.odom_t[keep_o], odom_pose=log.odom_pose[keep_o], odom_vel=log.odom_vel[keep_o])  # fmt: skip
+    if defect == "freeze":
+        start = rel[int(0.35 * n)]
+        held = (rel >= start) & (rel < start + 10.0)
+        held_o = (log.odom_t - t0 >= start) & (log.odom_t - t0 < start + 10.0)
+        odom, odom_pose, vel = log.odom.copy(), log.odom_pose.copy(), log.odom_vel.copy()
+        odom[held] = log.odom[np.flatnonzero(held)[0]]
+        odom_pose[held_o] = log.odom_pose[np.flatnonzero(held_o)[0]]
+        vel[held_o] = 0.0
+        return replace(log, odom=odom, odom_pose=odom_pose, odom_vel=vel)
+    if defect == "dropout":
+        start = rel[int(0.35 * n)]
+        ranges = log.ranges.copy()
+        ranges[(rel >= start) & (rel < start + 20.0)] = lidar.no_return_m
+        return replace(log, ranges=ranges)
+    if defect == "duplicates":
+        idx = np.sort(np.concatenate([np.arange(n), np.arange(49, n, 50)]))
+        return replace(log, t=log.t[idx], truth=log.truth[idx], odom=log.odom[idx], ranges=log.ranges[idx])
+    if defect == "spikes":
+        rng = np.random.default_rng(707)
+        ranges = log.ranges.copy()
+        hit = rng.random(ranges.shape) < 0.02
+        ranges[hit] = np.round(rng.uniform(0.05, 3.0, int(hit.sum())), 2)
+        return replace(log, ranges=ranges)
+    raise ValueError(f"unknown defect {defect!r}: one of {', '.join(DEFECTS)}")
+
+
 def clf_text(log: SimLog, lidar: Lidar = LIDARS["sick"]) -> str:
     """The log as CARMEN text: PARAMs, then ODOM and laser records in time order: FLASER for the
     SICK (its n = 180 fixes the geometry), ROBOTLASER1 for the others (start angle, field of view,
@@ -216,18 +275,22 @@ def relations_text(t: np.ndarray, truth: np.ndarray, local: np.ndarray, loop: np
     return "\n".join(rows(local) + [loop_head] + rows(loop)) + "\n"
 
 
-def log_stem(scale: float, world_seed: int, lidar: str = "sick", people: int = 0) -> str:
-    """The probe log's file stem: `loops{scale}x_w{world}`, then `_{lidar}` but for the SICK and `_p{people}` when people walk."""
-    return f"loops{scale:g}x_w{world_seed}" + ("" if lidar == "sick" else f"_{lidar}") + (f"_p{people}" if people else "")
+def log_stem(scale: float, world_seed: int, lidar: str = "sick", people: int = 0, defect: str = "") -> str:
+    """The probe log's file stem: `loops{scale}x_w{world}`, then `_{lidar}` but for the SICK, `_p{people}` when people walk
+    and `_{defect}` for a defect."""
+    return (f"loops{scale:g}x_w{world_seed}" + ("" if lidar == "sick" else f"_{lidar}") + (f"_p{people}" if people else "")
+            + (f"_{defect}" if defect else ""))  # fmt: skip
 
 
 def write_log(out: Path, scale: float, world_seed: int, seed: int, n_loop: int, yaw_bias_deg_per_m: float, lidar: str = "sick",
-              people: int = 0) -> Path:
+              people: int = 0, defect: str = "") -> Path:
     """Simulate and write `loops{scale}x_w{world_seed}.clf` (with `_{lidar}` before the suffix but
-    for the SICK, and `_p{people}` when people walk), `.relations` and `_truth.tum` into `out`; print a
-    summary; return the log's path."""
+    for the SICK, `_p{people}` when people walk and `_{defect}` with one of `DEFECTS`), `.relations`
+    (between the scans the log holds) and `_truth.tum` into `out`; print a summary; return the log's path."""
     log = simulate(scale, world_seed, seed, yaw_bias_deg_per_m, LIDARS[lidar], people)
-    stem = log_stem(scale, world_seed, lidar, people)
+    if defect:
+        log = with_defect(log, defect, LIDARS[lidar])
+    stem = log_stem(scale, world_seed, lidar, people, defect)
     out.mkdir(parents=True, exist_ok=True)
     local, loop = make_relations(log.t, log.truth, seed, n_loop)
     write_text(out / f"{stem}.clf", clf_text(log, LIDARS[lidar]))
@@ -307,6 +370,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--yaw-bias-deg-per-m", type=float, default=ODOM["yaw_bias_deg_per_m"], help="odometry yaw bias")
     ap.add_argument("--lidar", choices=sorted(LIDARS), default="sick", help="the lidar's kind (LIDARS: beams, field of view, range)")
     ap.add_argument("--people", type=int, default=0, help="people walking the corridors (moving 0.5 m cylinders), as in a building by day")
+    ap.add_argument("--defect", choices=sorted(DEFECTS), default="", help="a defect real logs have: " + "; ".join(f"{k}: {v}" for k, v in DEFECTS.items()))
     ap.add_argument("--run", action="store_true", help="run +experiment=lidar2d on the log")
     ap.add_argument("--filter-seeds", default="0,1,2", help="comma-separated filter seeds for --run")
     ap.add_argument("overrides", nargs="*", help="Hydra overrides added to every run (e.g. matcher.max_gap_m=0)")
@@ -315,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--people must be 0 or more, got {args.people}")
 
     worlds = [int(w) for w in args.world_seeds.split(",") if w.strip()] if args.world_seeds else [args.world_seed]
-    clfs = {w: write_log(args.out, args.scale, w, args.seed, args.loop_relations, args.yaw_bias_deg_per_m, args.lidar, args.people)
+    clfs = {w: write_log(args.out, args.scale, w, args.seed, args.loop_relations, args.yaw_bias_deg_per_m, args.lidar, args.people, args.defect)
             for w in worlds}
     if not args.run:
         return 0

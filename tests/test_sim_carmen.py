@@ -86,3 +86,42 @@ def test_the_summary_line_names_the_mean_the_worst_run_and_the_failures():
     assert line == "3 runs: smoothed relation error mean 0.113 m, worst 0.240 m (world 2, filter seed 1); 1 failed"
     assert sim_carmen.summary(table.iloc[3:]) == "no run finished (1 failed)"
     assert sim_carmen.summary(pd.DataFrame({"world_seed": [1], "filter_seed": [0], "error": ["x"]})) == "no run finished (1 failed)"
+
+
+def test_each_defect_does_to_the_log_what_it_says_and_nothing_else():
+    from slamlab.geometry import se2_between
+
+    log = sim_carmen.simulate(1.0, 0, 0, 1.0)
+    sick = sim_carmen.LIDARS["sick"]
+    n, rel = log.t.size, log.t - log.t[0]
+    inc = se2_between(log.odom[:-1], log.odom[1:])
+
+    reset = sim_carmen.with_defect(log, "reset", sick)
+    j = n // 2
+    assert np.allclose(reset.odom[j], 0.0, atol=1e-9) and np.array_equal(reset.odom[:j], log.odom[:j])
+    inc_reset = se2_between(reset.odom[:-1], reset.odom[1:])
+    assert np.hypot(*inc_reset[j - 1, :2]) > 2.0  # one jump of metres ...
+    assert np.allclose(np.delete(inc_reset, j - 1, axis=0), np.delete(inc, j - 1, axis=0), atol=1e-9)  # ... and the motion kept
+    assert np.array_equal(reset.ranges, log.ranges) and np.array_equal(reset.truth, log.truth)
+
+    gap = sim_carmen.with_defect(log, "gap", sick)
+    assert gap.t.size == n - 100 and np.diff(gap.t).max() > 10.0  # 10 s of 10 Hz records gone
+    assert np.diff(gap.odom_t).max() > 10.0
+
+    freeze = sim_carmen.with_defect(log, "freeze", sick)
+    held = np.flatnonzero((freeze.odom != log.odom).any(axis=1))
+    assert len(held) == 99 and (freeze.odom[held] == log.odom[held[0] - 1]).all()  # held at the window's first scan
+    assert np.array_equal(freeze.odom[held[-1] + 1:], log.odom[held[-1] + 1:])  # catching up at once after
+
+    dropout = sim_carmen.with_defect(log, "dropout", sick)
+    dark = (dropout.ranges == sick.no_return_m).all(axis=1)
+    assert dark.sum() >= 200 and np.ptp(rel[dark & ~(log.ranges == sick.no_return_m).all(axis=1)]) < 20.0
+
+    dup = sim_carmen.with_defect(log, "duplicates", sick)
+    assert dup.t.size == n + len(range(49, n, 50)) and np.array_equal(dup.t[49], dup.t[50])
+
+    spikes = sim_carmen.with_defect(log, "spikes", sick)
+    changed = spikes.ranges != log.ranges
+    assert 0.015 < changed.mean() < 0.025 and spikes.ranges[changed].max() <= 3.0
+    assert np.array_equal(sim_carmen.with_defect(log, "spikes", sick).ranges, spikes.ranges)  # seeded
+    assert sim_carmen.log_stem(2.0, 1, "sick", 0, "reset") == "loops2x_w1_reset"
