@@ -84,3 +84,19 @@ def test_rolling_median_is_pandas_centred_rolling_median() -> None:
             want = pd.Series(y[:n]).rolling(win, center=True, min_periods=1).median().to_numpy()
             np.testing.assert_array_equal(rolling_median(y[:n], win), want, err_msg=f"n={n} window={win}")
     assert rolling_median(np.zeros(0), 5).shape == (0,)
+
+
+def test_odometry_jumps_are_named_in_the_summary_and_listed_in_the_metrics(tmp_path: Path) -> None:
+    """A run whose odometry jumped (steps.odom_jump_m) says so among its headline numbers, with
+    where and how far; the metrics table lists every jump as JSON, not as a Python repr."""
+    d = make_run_dir(tmp_path / "run")
+    m = json.loads((d / "metrics.json").read_text())
+    m["odometry_jumps"] = [{"scan": 100 * k, "t_s": 10.0 * k, "m": 41.28, "deg": 57.35} for k in range(1, 6)]
+    (d / "metrics.json").write_text(json.dumps(m))
+    page = html.unescape(write_run_report(d).read_text())
+    assert "odometry jumps taken as resets, not motion" in page
+    assert "scan 100: 41.28 m, 57.35°; scan 200: 41.28 m, 57.35°; scan 300: 41.28 m, 57.35°; 2 more" in page
+    assert json.dumps(m["odometry_jumps"]) in page and "{'scan'" not in page
+    m.pop("odometry_jumps")
+    (d / "metrics.json").write_text(json.dumps(m))
+    assert "odometry jumps" not in write_run_report(d).read_text()

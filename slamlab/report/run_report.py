@@ -31,6 +31,7 @@ _THRESHOLD_KEYS = ("threshold", "neff_threshold", "ess_threshold", "neff_ratio",
 
 
 TEXTURE_MIN_PX = 420  # texture images smaller than this are shown enlarged by a whole factor
+MAX_JUMPS_SHOWN = 3  # odometry jumps listed in the summary (metrics.json lists them all)
 
 
 def neff_threshold(config: dict[str, Any], particles: int | None) -> tuple[float | None, str]:
@@ -75,7 +76,7 @@ def _metric_sections(metrics: dict[str, Any]) -> list[tuple[str, list[tuple[str,
                     for kk, vv in flatten(v).items()]
             subs.append((k, rows))
         else:
-            top.append((k, fmt_number(v)))
+            top.append((k, json.dumps(v) if isinstance(v, list) else fmt_number(v)))
     return ([("run", top)] if top else []) + subs
 
 
@@ -140,6 +141,11 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
     for key, label in (("weighting_overflows", "weight overflows"), ("weighting_underflows", "weight underflows")):
         if m.get(key):
             out.append((label, fmt_number(m[key])))
+    jumps = m.get("odometry_jumps")
+    if isinstance(jumps, list) and jumps:  # a reset of the odometry's frame, taken as no motion (steps.odom_jump_m)
+        shown = "; ".join(f"scan {j.get('scan')}: {fmt_number(j.get('m'))} m, {fmt_number(j.get('deg'))}°" for j in jumps[:MAX_JUMPS_SHOWN])
+        more = f"; {len(jumps) - MAX_JUMPS_SHOWN} more" if len(jumps) > MAX_JUMPS_SHOWN else ""
+        out.append(("odometry jumps taken as resets, not motion", shown + more))
     mem = m.get("map_memory") if isinstance(m.get("map_memory"), dict) else {}
     if "map_mb" in mem:
         out.append(("map MB (end / peak)", f"{fmt_number(mem['map_mb'])} / {fmt_number(mem.get('map_peak_mb', float('nan')))}"))
