@@ -43,7 +43,8 @@ class SlamResult:
       method: "odometry" or "match").
     - `causal` (N, 3): the online estimate (`filter.online`: the best particle, or the
       particles' weighted mean, at each step), filled the same way.
-    - `odometry` (N, 3): the raw odometry poses, shifted to start at the first estimate.
+    - `odometry` (N, 3): the raw odometry poses, shifted to start at the first estimate (its
+      jumps bridged as no motion: `slam.odometry_jumps`, `extras["odometry_jumps"]`).
     - `log_odds`: the final occupancy map in log-odds (float32 GridImage).
     - `steps`: one row per processed step with columns
       step, scan_index, t, neff, resampled, best_weight, step_time_s (and odometry_scale,
