@@ -100,3 +100,11 @@ def test_a_run_over_an_odometry_reset_follows_the_run_without_it(overrides, capl
     taken = run_slam(jumped, build_components(_cfg(*overrides, "steps.odom_jump_m=0", "steps.odom_jump_rad=0")))
     assert taken.extras["odometry_jumps"] == []
     assert np.abs(taken.trajectory[30:, :2] - plain.trajectory[30:, :2]).max() > 5.0
+
+
+@pytest.mark.parametrize("override", ["steps.odom_jump_m=-1", "steps.odom_jump_rad=nan", "steps.odom_jump_rad=inf"])
+def test_a_bad_jump_threshold_is_named(override):
+    from slamlab.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=override.split("=")[0].replace(".", r"\.")):
+        build_components(_cfg(override))
