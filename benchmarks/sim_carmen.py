@@ -161,7 +161,7 @@ def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float
 # Defects real logs have (`--defect`), each at a fixed share of the log so that every world gets it on its route.
 DEFECTS = {
     "reset": "the odometry re-zeroed in a new frame halfway (a base driver restarting, two recordings stitched)",
-    "gap": "10 s of records missing at 55 % of the log (the robot drives on, nothing is logged)",
+    "gap": "10 s of records missing at 55 % of the log (the robot drives on, nothing is logged; a local relation may span the gap)",
     "freeze": "the odometry frozen for 10 s at 35 % of the log, then catching up in one step (stale odometry messages)",
     "dropout": "the lidar returning nothing for 20 s at 35 % of the log (every beam at its no-return value)",
     "duplicates": "every 50th laser record written twice",
@@ -275,7 +275,7 @@ def relations_text(t: np.ndarray, truth: np.ndarray, local: np.ndarray, loop: np
     return "\n".join(rows(local) + [loop_head] + rows(loop)) + "\n"
 
 
-def log_stem(scale: float, world_seed: int, lidar: str = "sick", people: int = 0, defect: str = "") -> str:
+def log_stem(scale: float, world_seed: int | str, lidar: str = "sick", people: int = 0, defect: str = "") -> str:
     """The probe log's file stem: `loops{scale}x_w{world}`, then `_{lidar}` but for the SICK, `_p{people}` when people walk
     and `_{defect}` for a defect."""
     return (f"loops{scale:g}x_w{world_seed}" + ("" if lidar == "sick" else f"_{lidar}") + (f"_p{people}" if people else "")
@@ -389,7 +389,7 @@ def main(argv: list[str] | None = None) -> int:
     with ThreadPoolExecutor(max_workers=2) as pool:  # two slamlab processes at most
         rows = list(pool.map(lambda job: run_one(clfs[job[0]], job[1], args.out / "runs", args.overrides), jobs))
     table = pd.DataFrame([{"world_seed": w, "scale": args.scale, "overrides": " ".join(args.overrides), **r} for (w, _), r in zip(jobs, rows)])
-    stem = clfs[worlds[0]].stem if len(worlds) == 1 else f"{clfs[worlds[0]].stem.rsplit('_w', 1)[0]}_w{'-'.join(map(str, worlds))}"
+    stem = log_stem(args.scale, "-".join(map(str, worlds)), args.lidar, args.people, args.defect)  # one world or "0-1-2"
     csv = args.out / f"sim_carmen_{stem}_{time.strftime('%Y%m%d-%H%M%S')}.csv"  # one per invocation
     write_text(csv, table.to_csv(index=False))
     shown = table.drop(columns=["run_dir"])

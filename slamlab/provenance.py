@@ -16,6 +16,7 @@ from pathlib import Path
 import yaml
 from omegaconf import OmegaConf
 
+from slamlab.config.run import RunConfig
 from slamlab.io.rundir import RunFile
 from slamlab.run_compare import first_nested_difference, value_at
 
@@ -62,6 +63,15 @@ def compose_preset(name: str, overrides: list[str]):
         return compose(config_name="config", overrides=[f"+{PRESET_GROUP}={name}", *overrides])
 
 
+def _fill_missing(saved: dict, defaults: dict) -> None:
+    """Add to `saved` (in place) every key of `defaults` it lacks, nested dicts key by key."""
+    for key, value in defaults.items():
+        if key not in saved:
+            saved[key] = value
+        elif isinstance(value, dict) and isinstance(saved[key], dict):
+            _fill_missing(saved[key], value)
+
+
 def preset_violation(run_dir: Path, preset: str) -> str | None:
     """None if `run_dir` is a faithful run of `+experiment=PRESET`, else why it is not (one line)."""
     origin = read_origin(run_dir)
@@ -78,6 +88,9 @@ def preset_violation(run_dir: Path, preset: str) -> str | None:
     except HydraException as exc:
         return f"preset {preset!r} cannot be composed: {str(exc).splitlines()[0]}"
     saved = OmegaConf.to_container(OmegaConf.load(Path(run_dir) / RunFile.HYDRA_CONFIG), resolve=False)
+    # a run-level key added since the run was made (e.g. steps.odom_jump_m) is re-run at its schema default, which
+    # `run_settings` fills in: the saved config holds it at that value
+    _fill_missing(saved, OmegaConf.to_container(OmegaConf.structured(RunConfig), resolve=False))
     wanted = OmegaConf.to_container(frozen, resolve=False)
     diff = first_nested_difference(saved, wanted, lambda _, key: key in PATH_KEYS)
     if diff is None:

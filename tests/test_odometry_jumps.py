@@ -58,6 +58,24 @@ def test_odometry_without_jumps_is_the_same_array_and_zero_thresholds_test_nothi
     assert [j.scan for j in find_jumps(jumped, times, 50.0, 0.0)] == []  # 45 m is under 50
 
 
+@pytest.mark.parametrize("share", [0.5, 0.1, 0.9])
+def test_a_reset_blended_over_the_scan_between_the_frames_is_bridged_on_both_sides(share):
+    """A ROS bag's odometry is interpolated at each scan's stamp: the scan that falls between the
+    last message of the old frame and the first of the new one gets a pose part-way between
+    them, so the jump splits over two increments. A 2.95 m reset halved is two 1.5 m steps,
+    each under the 2 m threshold alone; blended unevenly, the small side is the rest of it."""
+    odom = _path()
+    jumped = _reset(odom, 21, np.array([2.0, -2.0, 0.3]))
+    jumped[20] = (1 - share) * jumped[19] + share * jumped[21]  # x, y and theta part-way, as interpolation does
+    times = np.arange(50) * 0.1  # 10 Hz: the path's 0.1 m steps are 1 m/s
+    jumps = find_jumps(jumped, times, 2.0, 1.57)
+    assert [j.scan for j in jumps] == [20, 21]
+    bridged = bridge_jumps(jumped, jumps)
+    inc, inc_true = se2_between(bridged[:-1], bridged[1:]), se2_between(odom[:-1], odom[1:])
+    np.testing.assert_allclose(inc[[19, 20]], 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.delete(inc, [19, 20], axis=0), np.delete(inc_true, [19, 20], axis=0), atol=1e-12)
+
+
 def test_a_gap_in_the_log_is_motion_not_a_jump():
     """10 s without records: the robot drove 3.5 m and turned 80 degrees between two scans, at
     walking pace; the same increment 0.1 s apart is a jump. Stamps that run backwards (Intel's)
@@ -108,3 +126,21 @@ def test_a_bad_jump_threshold_is_named(override):
 
     with pytest.raises(ConfigError, match=override.split("=")[0].replace(".", r"\.")):
         build_components(_cfg(override))
+
+
+@pytest.mark.parametrize("extra, listed", [
+    ((), [30]),
+    (("steps.max_scans=25",), []),  # the run ends before the reset
+    (("steps.max_steps=10",), []),  # ... at its tenth step, before the reset
+    (("steps.max_steps=40",), [30]),
+    (("mode=odometry",), [30]),  # dead reckoning bridges it too
+])
+def test_only_the_jumps_within_the_run_are_listed_and_named(extra, listed, caplog):
+    jumped = _rebased(_room_sequence(), 30)
+    with caplog.at_level(logging.WARNING):
+        result = run_slam(jumped, build_components(_cfg("particles=5", "seed=7", "matcher=likelihood", *extra)))
+    assert [j["scan"] for j in result.extras["odometry_jumps"]] == listed
+    assert ("odometry jumps" in caplog.text) == bool(listed)
+    if "mode=odometry" in extra:  # the dead-reckoning path has no step of 48 m
+        inc = se2_between(result.trajectory[:-1], result.trajectory[1:])
+        assert np.hypot(inc[:, 0], inc[:, 1]).max() < 0.1

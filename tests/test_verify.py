@@ -192,3 +192,36 @@ def test_metrics_differ_by_graph_timings_only_are_the_same_results():
     assert "graph.accepted" in first_metric_difference(a, {**b, "graph": {**b["graph"], "accepted": 4}})
     assert "loop_min_dt_s" in first_metric_difference(a, {**b, "relations": {"loop_min_dt_s": 20.0}})
     assert VOLATILE.search("optimise_s") and not VOLATILE.search("duration_s")
+
+
+def test_a_run_made_before_a_run_level_key_existed_is_still_the_preset_at_that_keys_default(tmp_path):
+    """A saved config without a run-level key added since (steps.odom_jump_m) re-runs at the
+    key's schema default: the preset check reads it so, while a key the preset sets to
+    something else stays a difference."""
+    from omegaconf import OmegaConf
+
+    from slamlab.provenance import compose_preset, preset_violation
+
+    def saved_run(name: str, drop: str, set_to: tuple[str, object] | None = None) -> Path:
+        """The grading preset's config saved without `drop` (dotted), `set_to` (dotted key, value) changed."""
+        cfg = OmegaConf.to_container(compose_preset("grading", []), resolve=False)
+        *parents, last = drop.split(".")
+        node = cfg
+        for part in parents:
+            node = node[part]
+        node.pop(last)
+        if set_to:
+            cfg["steps"][set_to[0]] = set_to[1]
+        hydra = tmp_path / name / ".hydra"
+        hydra.mkdir(parents=True)
+        (hydra / "config.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(cfg)))
+        (hydra / "overrides.yaml").write_text(yaml.safe_dump(["+experiment=grading"]))
+        return tmp_path / name
+
+    assert preset_violation(saved_run("old", "steps.odom_jump_m"), "grading") is None
+    assert preset_violation(saved_run("old2", "steps.odom_jump_rad"), "grading") is None
+    # a missing key the preset sets off its default (seed 2026; the schema's 0) is still a difference
+    assert preset_violation(saved_run("seedless", "seed"), "grading") == (
+        "the run's saved config differs from the grading preset: 'seed' is 0 in the run, 2026 in the preset")
+    assert preset_violation(saved_run("changed", "steps.odom_jump_m", ("min_angle_rad", 0.3)), "grading") == (
+        "the run's saved config differs from the grading preset: 'steps.min_angle_rad' is 0.3 in the run, 0.0 in the preset")

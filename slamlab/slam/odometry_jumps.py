@@ -1,8 +1,9 @@
 """Odometry that jumps: a reset of the odometry's frame in the middle of a log, not motion.
 
-A robot base whose driver restarts, or a log stitched from two recordings, hands on its
-odometry in a new frame: between two consecutive scans the odometry moves metres or turns
-further than a robot moves in the time of a scan. Taken as motion, that one increment throws
+A robot base whose driver restarts, or a log stitched from two recordings without a pause
+between them, hands on its odometry in a new frame: between two consecutive scans the
+odometry moves metres or turns further than a robot moves in the time of a scan. (Two
+recordings joined across a pause of seconds look like driving and are taken as motion.) Taken as motion, that one increment throws
 every filter's prediction metres off, the scans after it are matched where the map has
 nothing, and the building is drawn twice (a probe log re-zeroed once at 400 s: 0.029 ->
 8.27 m relation error; `benchmarks/RESULTS.md`, 2026-12-01).
@@ -32,11 +33,14 @@ from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_inverse, 
 
 JUMP_SPEED_MPS = 10.0  # an increment past `max_m` is a jump only if it is also faster than this (m/s) ...
 JUMP_TURN_RPS = 2 * np.pi  # ... and one past `max_rad` only if it turns faster than a turn a second
+BLEND_M = 0.1  # the increment beside a jump is part of it when it differs from the next one out by more than
+BLEND_RAD = 0.1  # this (m, rad): a robot's motion does not change that much from one scan to the next
 
 
 @dataclass(frozen=True, slots=True)
 class OdometryJump:
-    """One bridged jump: the odometry's increment from scan `scan - 1` to `scan` (file order),
+    """One bridged jump: the odometry's increment from scan `scan - 1` to `scan` (the run's
+    scans in file order, counted from 0: a CARMEN log's or THOR sequence's scan index),
     `m` metres and `rad` radians (absolute), at scan `scan`'s time `t_s` (s)."""
 
     scan: int
@@ -49,22 +53,49 @@ class OdometryJump:
         return {"scan": self.scan, "t_s": self.t_s, "m": self.m, "deg": float(np.degrees(self.rad))}
 
 
+def _beyond(steps: FloatArray, max_m: float, max_rad: float) -> np.ndarray:
+    """Which increments `steps` (K, 3) are longer than `max_m` or turn more than `max_rad` (0: not tested)."""
+    out = np.zeros(len(steps), dtype=bool)
+    if max_m > 0:
+        out |= np.hypot(steps[:, 0], steps[:, 1]) > max_m
+    if max_rad > 0:
+        out |= np.abs(wrap_angle(steps[:, 2])) > max_rad
+    return out
+
+
 def find_jumps(odom: FloatArray, times: FloatArray, max_m: float, max_rad: float) -> list[OdometryJump]:
-    """The increments of `odom` (N, 3) between consecutive poses longer than `max_m` or
-    turning more than `max_rad` (either 0: not tested), faster than a robot moves over the
-    time between their scans (`times` (N,) s, file order: a log's stamps may run backwards, so
-    the time apart is taken as it comes, absolute), with the later scan's time."""
+    """The increments of `odom` (N, 3) between consecutive poses that are part of a jump, with
+    the later scan's time from `times` (N,) s. An increment is fast when it moves or turns
+    faster than a robot does (`JUMP_SPEED_MPS`, `JUMP_TURN_RPS`) over the time between its
+    scans (file order: a log's stamps may run backwards, so the time apart is taken as it
+    comes, absolute). A jump is a fast increment longer than `max_m` or turning more than
+    `max_rad` (either 0: not tested), or two fast increments in a row that are together (a
+    reset that odometry interpolated at the scans' stamps, as a ROS bag's is, splits over the
+    scan that falls between the frames); and the increment beside a jump is part of it when
+    it differs from the one beyond it by more than `BLEND_M` or `BLEND_RAD` (the rest of a
+    reset blended unevenly)."""
     if len(odom) < 2 or (max_m <= 0 and max_rad <= 0):
         return []
     inc = se2_between(odom[:-1], odom[1:])
     step_m = np.hypot(inc[:, 0], inc[:, 1])
     turn = np.abs(wrap_angle(inc[:, 2]))
     apart_s = np.abs(np.diff(np.asarray(times, dtype=np.float64)))
-    jumped = np.zeros(len(inc), dtype=bool)
+    fast = np.zeros(len(inc), dtype=bool)
     if max_m > 0:
-        jumped |= (step_m > max_m) & (step_m > JUMP_SPEED_MPS * apart_s)
+        fast |= step_m > JUMP_SPEED_MPS * apart_s
     if max_rad > 0:
-        jumped |= (turn > max_rad) & (turn > JUMP_TURN_RPS * apart_s)
+        fast |= turn > JUMP_TURN_RPS * apart_s
+    jumped = fast & _beyond(inc, max_m, max_rad)
+    if len(inc) >= 2:
+        pair = fast[:-1] & fast[1:] & _beyond(se2_between(odom[:-2], odom[2:]), max_m, max_rad)
+        jumped[:-1] |= pair
+        jumped[1:] |= pair
+    for i in np.flatnonzero(jumped):
+        for beside, far in ((i - 1, i - 2), (i + 1, i + 2)):  # the increment beside a jump, the next one out
+            if 0 <= beside < len(inc) and not jumped[beside]:
+                usual = inc[far] if 0 <= far < len(inc) else np.zeros(3)
+                d = inc[beside] - usual
+                jumped[beside] |= bool(np.hypot(d[0], d[1]) > BLEND_M or abs(wrap_angle(d[2])) > BLEND_RAD)
     return [OdometryJump(int(i) + 1, float(times[i + 1]), float(step_m[i]), float(turn[i])) for i in np.flatnonzero(jumped)]
 
 

@@ -84,12 +84,6 @@ def plan_steps(sequence: Sequence, c: Components) -> StepPlan:
     times = scan_times(scans)
     odom = scan_odometry(scans)
     jumps = find_jumps(odom, times, c.odom_jump_m, c.odom_jump_rad)
-    for jump in jumps[:MAX_JUMPS_LOGGED]:
-        log.warning("%s: the odometry jumps %.2f m and %.1f deg between scans %d and %d (t = %.3f s), more than a robot moves "
-                    "between two scans (steps.odom_jump_m=%g, steps.odom_jump_rad=%g): taken as a reset of its frame, not as motion",
-                    sequence.name, jump.m, np.degrees(jump.rad), jump.scan - 1, jump.scan, jump.t_s, c.odom_jump_m, c.odom_jump_rad)
-    if len(jumps) > MAX_JUMPS_LOGGED:
-        log.warning("%s: %d more odometry jumps taken as resets (metrics.json: odometry_jumps)", sequence.name, len(jumps) - MAX_JUMPS_LOGGED)
     odom = bridge_jumps(odom, jumps)
     step_scans = select_steps(odom, c.every, c.min_distance_m, c.min_angle_rad, c.skip_static_start)
     if c.max_steps is not None and len(step_scans) > c.max_steps:
@@ -97,6 +91,12 @@ def plan_steps(sequence: Sequence, c: Components) -> StepPlan:
         step_scans = step_scans[: c.max_steps]
         scans, times, odom = scans[: step_scans[-1] + 1], times[: step_scans[-1] + 1], odom[: step_scans[-1] + 1]
         jumps = [jump for jump in jumps if jump.scan <= step_scans[-1]]
+    for jump in jumps[:MAX_JUMPS_LOGGED]:  # the jumps within the run's scans
+        log.warning("%s: the odometry jumps %.2f m and %.1f deg between scans %d and %d (t = %.3f s), more than a robot moves "
+                    "between two scans (steps.odom_jump_m=%g, steps.odom_jump_rad=%g): taken as a reset of its frame, not as motion",
+                    sequence.name, jump.m, np.degrees(jump.rad), jump.scan - 1, jump.scan, jump.t_s, c.odom_jump_m, c.odom_jump_rad)
+    if len(jumps) > MAX_JUMPS_LOGGED:
+        log.warning("%s: %d more odometry jumps taken as resets (metrics.json: odometry_jumps)", sequence.name, len(jumps) - MAX_JUMPS_LOGGED)
     return StepPlan(scans, times, odom, step_scans, jumps)
 
 
