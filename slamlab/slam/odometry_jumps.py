@@ -2,11 +2,12 @@
 
 A robot base whose driver restarts, or a log stitched from two recordings without a pause
 between them, hands on its odometry in a new frame: between two consecutive scans the
-odometry moves metres or turns further than a robot moves in the time of a scan. (Two
-recordings joined across a pause of seconds look like driving and are taken as motion.) Taken as motion, that one increment throws
-every filter's prediction metres off, the scans after it are matched where the map has
-nothing, and the building is drawn twice (a probe log re-zeroed once at 400 s: 0.029 ->
-8.27 m relation error; `benchmarks/RESULTS.md`, 2026-12-01).
+odometry moves metres or turns further than a robot moves in the time of a scan. Taken as
+motion, that one increment throws every filter's prediction metres off, the scans after it
+are matched where the map has nothing, and the building is drawn twice (a probe log
+re-zeroed once at 400 s: 0.029 -> 8.27 m relation error; `benchmarks/RESULTS.md`,
+2026-12-01). Two recordings joined across a pause of seconds look like driving and stay
+motion.
 
 `bridge_jumps` takes each such increment as no motion: every pose from the jump on is moved
 rigidly so that the scan after the jump starts where the scan before it was. The increments
