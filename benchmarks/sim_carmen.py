@@ -183,25 +183,25 @@ def with_defect(log: SimLog, defect: str, lidar: Lidar) -> SimLog:
         odom_pose = log.odom_pose.copy()
         odom_pose[late] = se2_compose(zero, log.odom_pose[late])
         return replace(log, odom=odom, odom_pose=odom_pose)
+    def within(t: np.ndarray, share: float, length_s: float) -> np.ndarray:
+        """Which of the times `t` (s, epoch) fall in the `length_s` from the scan at `share` of the log."""
+        start = rel[int(share * n)]
+        return (t - t0 >= start) & (t - t0 < start + length_s)
+
     if defect == "gap":
-        start = rel[int(0.55 * n)]
-        keep = (rel < start) | (rel >= start + 10.0)
-        keep_o = (log.odom_t - t0 < start) | (log.odom_t - t0 >= start + 10.0)
+        keep, keep_o = ~within(log.t, 0.55, 10.0), ~within(log.odom_t, 0.55, 10.0)
         return replace(log, t=log.t[keep], truth=log.truth[keep], odom=log.odom[keep], ranges=log.ranges[keep],
                        odom_t=log.odom_t[keep_o], odom_pose=log.odom_pose[keep_o], odom_vel=log.odom_vel[keep_o])  # fmt: skip
     if defect == "freeze":
-        start = rel[int(0.35 * n)]
-        held = (rel >= start) & (rel < start + 10.0)
-        held_o = (log.odom_t - t0 >= start) & (log.odom_t - t0 < start + 10.0)
+        held, held_o = within(log.t, 0.35, 10.0), within(log.odom_t, 0.35, 10.0)
         odom, odom_pose, vel = log.odom.copy(), log.odom_pose.copy(), log.odom_vel.copy()
         odom[held] = log.odom[np.flatnonzero(held)[0]]
         odom_pose[held_o] = log.odom_pose[np.flatnonzero(held_o)[0]]
         vel[held_o] = 0.0
         return replace(log, odom=odom, odom_pose=odom_pose, odom_vel=vel)
     if defect == "dropout":
-        start = rel[int(0.35 * n)]
         ranges = log.ranges.copy()
-        ranges[(rel >= start) & (rel < start + 20.0)] = lidar.no_return_m
+        ranges[within(log.t, 0.35, 20.0)] = lidar.no_return_m
         return replace(log, ranges=ranges)
     if defect == "duplicates":
         idx = np.sort(np.concatenate([np.arange(n), np.arange(49, n, 50)]))

@@ -266,7 +266,7 @@ def _run_filter(sequence: Sequence, c: Components, progress: Callable[[int, int]
             "neff_mean": float(np.mean(rows["neff"])),
             "neff_min": float(np.min(rows["neff"])),
             "filter": c.filter.name,
-            "odometry_jumps": [jump.as_dict() for jump in plan.odometry_jumps if jump.scan < len(odom)],
+            "odometry_jumps": plan.jumps_up_to(len(odom)),
             **({} if scales is None else {"odometry_scale": rows["odometry_scale"][-1]}),
             "matcher_map_reads": int(c.matcher.map_reads) if slam else 0,
             **map_memory,

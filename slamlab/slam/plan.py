@@ -73,6 +73,11 @@ class StepPlan:
     step_scans: np.ndarray  # (K,) indices of the processed scans
     odometry_jumps: list[OdometryJump]  # the jumps taken as no motion (`steps.odom_jump_m` / `odom_jump_rad`)
 
+    def jumps_up_to(self, n_scans: int) -> list[dict]:
+        """The jumps among the first `n_scans` scans (a run stopped early ends there), as
+        metrics.json's `odometry_jumps` lists them."""
+        return [jump.as_dict() for jump in self.odometry_jumps if jump.scan < n_scans]
+
 
 def plan_steps(sequence: Sequence, c: Components) -> StepPlan:
     """The scans of a run: the first `steps.max_scans` scans, and with `steps.max_steps` the
