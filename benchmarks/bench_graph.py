@@ -17,7 +17,8 @@ project has, with `+experiment=lidar2d` (CARMEN logs) or `+experiment=sim_loops`
   `--lidars` adds other lidars at 2x (`sim_carmen.LIDARS`: urg, utm, sick_half): the whole
   robustness matrix, 40 runs at two steps (~25 min on 2 cores), is
   `--only probes --filters graph --lidars sick,urg,utm,sick_half`. `--people N` has N people walk
-  every probe's corridors (moving obstacles the map must not keep).
+  every probe's corridors (moving obstacles the map must not keep). `--layout campus` drives the same
+  figure-eight outdoors (sim_carmen --layout campus: streets between buildings, trees and cars).
 - sim_loops: `+experiment=sim_loops` at world_scale 1.5 and 2.0, dataset seeds 0-4
   (`texture=none report=false`): ATE RMSE unaligned and aligned, smoothed and causal (budget:
   worst <= 0.10 m unaligned, <= 0.05 m aligned).
@@ -99,23 +100,23 @@ def logs(out: Path, n_jobs: int, filters: tuple[str, ...], steps: tuple[float, .
 
 
 def probes(out: Path, n_jobs: int, filters: tuple[str, ...], steps: tuple[float, ...], lidars: tuple[str, ...] = ("sick",),
-           people: int = 0, defect: str = "") -> None:
+           people: int = 0, defect: str = "", layout: str = "loops") -> None:
     folder = out / "probes"
     clfs = []
     for lidar in lidars:
         for scale in (2.0, 3.0) if lidar == "sick" else (2.0,):
             for world in range(4):
-                stem = sim_carmen.log_stem(scale, world, lidar, people, defect)
+                stem = sim_carmen.log_stem(scale, world, lidar, people, defect, layout)
                 clf = folder / f"{stem}.clf"
                 if not clf.is_file():
-                    sim_carmen.write_log(folder, scale, world, 0, 300, sim_carmen.ODOM["yaw_bias_deg_per_m"], lidar, people, defect)
+                    sim_carmen.write_log(folder, scale, world, 0, 300, sim_carmen.ODOM["yaw_bias_deg_per_m"], lidar, people, defect, layout)
                 clfs.append((lidar, scale, world, clf))
-    jobs = [({"lidar": lidar, "people": people, "defect": defect or "-", "scale": s, "step": st, "world": w, "filter": flt},
+    jobs = [({"layout": layout, "lidar": lidar, "people": people, "defect": defect or "-", "scale": s, "step": st, "world": w, "filter": flt},
              ["+experiment=lidar2d", f"filter={flt}", f"dataset.path={clf}", f"steps.min_distance_m={st}", f"steps.min_angle_rad={st}"])
             for st in steps for lidar, s, w, clf in clfs for flt in filters]
     rows = [{**r["job"], **_rel(r), **_common(r)} for r in bench_filters._many(jobs, out / "probe-runs", n_jobs)]
-    _runs_and_worst(pd.DataFrame(rows), "corridor probe (sim_carmen): relation error per run (m)", "corridor probe: over the four worlds", 4,
-                    ["lidar", "people", "defect", "scale", "step", "filter"], mean_smoothed_m=("smoothed_m", "mean"), worst_smoothed_m=("smoothed_m", "max"),
+    _runs_and_worst(pd.DataFrame(rows), f"{layout} probe (sim_carmen): relation error per run (m)", f"{layout} probe: over the four worlds", 4,
+                    ["layout", "lidar", "people", "defect", "scale", "step", "filter"], mean_smoothed_m=("smoothed_m", "mean"), worst_smoothed_m=("smoothed_m", "max"),
                     mean_causal_m=("causal_m", "mean"), worst_causal_m=("causal_m", "max"), worst_loop_m=("smoothed_loop_m", "max"))
 
 
@@ -209,6 +210,7 @@ def main() -> None:
     ap.add_argument("--lidars", default="sick", help="probes: the lidars (sim_carmen.LIDARS); the SICK at 2x and 3x, the others at 2x")
     ap.add_argument("--people", type=int, default=0, help="probes: people walking the corridors of every probe log (sim_carmen --people)")
     ap.add_argument("--defect", choices=sorted(sim_carmen.DEFECTS), default="", help="probes: every probe log with this defect (sim_carmen --defect)")
+    ap.add_argument("--layout", choices=sim_carmen.LAYOUTS, default="loops", help="probes: the `loops` building or the outdoor `campus` (sim_carmen --layout)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a config override added to every run")
     args = ap.parse_args()
     if args.people < 0:
@@ -227,7 +229,8 @@ def main() -> None:
         if "logs" in parts:
             logs(out, args.jobs, filters, tuple(float(v) for v in args.steps.split(",")), tuple(float(v) for v in args.jitter.split(",")))
         if "probes" in parts:
-            probes(out, args.jobs, filters, tuple(float(v) for v in args.steps.split(",")), tuple(args.lidars.split(",")), args.people, args.defect)
+            probes(out, args.jobs, filters, tuple(float(v) for v in args.steps.split(",")), tuple(args.lidars.split(",")), args.people, args.defect,
+                   args.layout)
         if "sim_loops" in parts:
             sim_loops(out, args.jobs, filters)
 

@@ -21,11 +21,16 @@ spacing, range and field of view are what a log we do not have is most likely to
 the lidar sees, as in any building by day), which the map must not keep.
 `--defect KIND` gives the log one of the defects real logs have (`DEFECTS`: an odometry reset, a
 gap, frozen odometry, a lidar dropout, duplicated records, spurious short returns).
+`--layout campus` drives the same figure-eight outdoors instead (slamlab.datasets.sim.campus: 200 x 160 m
+at `--scale 2`, 856 m of streets between buildings, trees, parked cars, lamp posts and hedges; much of each
+scan returns nothing): the kind of log Freiburg's campus or MIT's Killian Court is, which we do not have either.
+`--lidar lms291` is an outdoor SICK that reports returns out to 80 m (the preset maps up to 30 m).
 
     .venv/bin/python benchmarks/sim_carmen.py --scale 2.0 --world-seed 0 [--out /tmp/simcarmen]
     .venv/bin/python benchmarks/sim_carmen.py --scale 2.0 --world-seed 0 --run --filter-seeds 0,1,2 [OVERRIDE ...]
     .venv/bin/python benchmarks/sim_carmen.py --world-seeds 0,1,2,3 --run [OVERRIDE ...]   # one table, 4 worlds
     .venv/bin/python benchmarks/sim_carmen.py --lidar urg --world-seeds 0,1 --run          # a 5.6 m lidar
+    .venv/bin/python benchmarks/sim_carmen.py --layout campus --world-seeds 0,1,2,3 --run   # outdoors
 
 `--run` runs `slamlab +experiment=lidar2d` on the log once per filter seed (two at a time,
 NUMBA_NUM_THREADS=1, each in a new folder under OUT/runs/) and prints a table: relation error
@@ -51,6 +56,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial import cKDTree
 
+from slamlab.datasets.sim.campus import build_campus
 from slamlab.datasets.sim.people import walking_people
 from slamlab.datasets.sim.raycast import cast_scans
 from slamlab.datasets.sim.sensors import simulate_odometry
@@ -98,7 +104,11 @@ LIDARS = {
     "utm": Lidar(-135.0, 0.25, 1081, 30.0, 60.0),  # Hokuyo UTM-30LX: 270 deg, 30 m
     "urg": Lidar(-120.0, 0.36, 667, 5.6, 0.0),  # Hokuyo URG-04LX: 240 deg, 5.6 m, 0 = no return
     "rplidar": Lidar(-180.0, 1.0, 360, 12.0, 0.0),  # a 360-degree hobby lidar (RPLIDAR A1-like): 12 m
+    "lms291": Lidar(-90.0, 1.0, 180, 80.0, 81.9),  # an outdoor SICK (LMS 291-like): 80 m, as on campus logs
 }
+# The worlds (`--layout`): the `loops` building (slamlab.datasets.sim.world) or the outdoor `campus`
+# (slamlab.datasets.sim.campus: buildings, trees, cars along streets; the same figure-eight route).
+LAYOUTS = ("loops", "campus")
 # Odometry: simulate_odometry's noise model, set for a wheeled robot (keyword arguments).
 ODOM = dict(scale_bias=0.02, yaw_bias_deg_per_m=1.0, yaw_drift_deg_per_min=3.0,
             noise_m_per_sqrt_s=0.005, noise_deg_per_sqrt_s=0.1)  # fmt: skip
@@ -132,9 +142,14 @@ def true_motion(route: np.ndarray) -> Motion:
                   roll=zero, pitch=zero, neck_yaw=zero, head_pitch=zero)  # fmt: skip
 
 
-def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float, lidar: Lidar = LIDARS["sick"], people: int = 0) -> SimLog:
-    """The whole log in memory (see the module doc); `people` walk the corridors (`walking_people`, seeded by the world)."""
-    world = build_world(world_seed, n_clutter=40, texture_res_m=0.05, scale=scale, layout="loops")
+def simulate(scale: float, world_seed: int, seed: int, yaw_bias_deg_per_m: float, lidar: Lidar = LIDARS["sick"], people: int = 0,
+             layout: str = "loops") -> SimLog:
+    """The whole log in memory (see the module doc); `people` walk the corridors or sidewalks (`walking_people`, seeded by
+    the world); `layout`: one of LAYOUTS."""
+    if layout not in LAYOUTS:
+        raise ValueError(f"unknown layout {layout!r}: one of {', '.join(LAYOUTS)}")
+    world = (build_campus(world_seed, scale) if layout == "campus"
+             else build_world(world_seed, n_clutter=40, texture_res_m=0.05, scale=scale, layout="loops"))
     motion = true_motion(world.route)
     odom_fine = simulate_odometry(motion, seed, **{**ODOM, "yaw_bias_deg_per_m": yaw_bias_deg_per_m})
     end = motion.t[-1]
@@ -221,7 +236,7 @@ def clf_text(log: SimLog, lidar: Lidar = LIDARS["sick"]) -> str:
     resolution and maximum range in each record). The laser pose and robot pose are both the
     odometry (a mount at the robot centre, as Intel)."""
     flaser = lidar == LIDARS["sick"]
-    head = ["# simulated by benchmarks/sim_carmen.py (slamlab): wheeled robot, loops building",
+    head = ["# simulated by benchmarks/sim_carmen.py (slamlab): a wheeled robot driving a figure-eight",
             "# FLASER num_readings [range_readings] x y theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname logger_timestamp"
             if flaser else "# ROBOTLASER1 laser_type start_angle fov angular_res max_range accuracy remission_mode num_readings "
             "[range_readings] num_remissions laser_pose_x laser_pose_y laser_pose_theta robot_pose_x robot_pose_y "
@@ -275,22 +290,22 @@ def relations_text(t: np.ndarray, truth: np.ndarray, local: np.ndarray, loop: np
     return "\n".join(rows(local) + [loop_head] + rows(loop)) + "\n"
 
 
-def log_stem(scale: float, world_seed: int | str, lidar: str = "sick", people: int = 0, defect: str = "") -> str:
-    """The probe log's file stem: `loops{scale}x_w{world}`, then `_{lidar}` but for the SICK, `_p{people}` when people walk
+def log_stem(scale: float, world_seed: int | str, lidar: str = "sick", people: int = 0, defect: str = "", layout: str = "loops") -> str:
+    """The probe log's file stem: `{layout}{scale}x_w{world}` (`loops2x_w0`, `campus2x_w0`), then `_{lidar}` but for the SICK, `_p{people}` when people walk
     and `_{defect}` for a defect."""
-    return (f"loops{scale:g}x_w{world_seed}" + ("" if lidar == "sick" else f"_{lidar}") + (f"_p{people}" if people else "")
+    return (f"{layout}{scale:g}x_w{world_seed}" + ("" if lidar == "sick" else f"_{lidar}") + (f"_p{people}" if people else "")
             + (f"_{defect}" if defect else ""))  # fmt: skip
 
 
 def write_log(out: Path, scale: float, world_seed: int, seed: int, n_loop: int, yaw_bias_deg_per_m: float, lidar: str = "sick",
-              people: int = 0, defect: str = "") -> Path:
-    """Simulate and write `loops{scale}x_w{world_seed}.clf` (with `_{lidar}` before the suffix but
+              people: int = 0, defect: str = "", layout: str = "loops") -> Path:
+    """Simulate and write `{layout}{scale}x_w{world_seed}.clf` (with `_{lidar}` before the suffix but
     for the SICK, `_p{people}` when people walk and `_{defect}` with one of `DEFECTS`), `.relations`
     (between the scans the log holds) and `_truth.tum` into `out`; print a summary; return the log's path."""
-    log = simulate(scale, world_seed, seed, yaw_bias_deg_per_m, LIDARS[lidar], people)
+    log = simulate(scale, world_seed, seed, yaw_bias_deg_per_m, LIDARS[lidar], people, layout)
     if defect:
         log = with_defect(log, defect, LIDARS[lidar])
-    stem = log_stem(scale, world_seed, lidar, people, defect)
+    stem = log_stem(scale, world_seed, lidar, people, defect, layout)
     out.mkdir(parents=True, exist_ok=True)
     local, loop = make_relations(log.t, log.truth, seed, n_loop)
     write_text(out / f"{stem}.clf", clf_text(log, LIDARS[lidar]))
@@ -361,7 +376,8 @@ def summary(table: pd.DataFrame) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scale", type=float, default=2.0, help="building size relative to 40 x 30 m")
+    ap.add_argument("--layout", choices=LAYOUTS, default="loops", help="the world: the `loops` building or the outdoor `campus`")
+    ap.add_argument("--scale", type=float, default=2.0, help="world size relative to its plan (loops: 40 x 30 m; campus: 100 x 80 m)")
     ap.add_argument("--world-seed", type=int, default=0, help="floor plan and clutter")
     ap.add_argument("--world-seeds", default=None, help="comma-separated worlds, all in one table (instead of --world-seed)")
     ap.add_argument("--seed", type=int, default=0, help="odometry, range noise and relation sampling")
@@ -379,8 +395,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--people must be 0 or more, got {args.people}")
 
     worlds = [int(w) for w in args.world_seeds.split(",") if w.strip()] if args.world_seeds else [args.world_seed]
-    clfs = {w: write_log(args.out, args.scale, w, args.seed, args.loop_relations, args.yaw_bias_deg_per_m, args.lidar, args.people, args.defect)
-            for w in worlds}
+    clfs = {w: write_log(args.out, args.scale, w, args.seed, args.loop_relations, args.yaw_bias_deg_per_m, args.lidar, args.people, args.defect,
+                          args.layout) for w in worlds}
     if not args.run:
         return 0
     seeds = [int(s) for s in args.filter_seeds.split(",") if s.strip()]
@@ -389,7 +405,7 @@ def main(argv: list[str] | None = None) -> int:
     with ThreadPoolExecutor(max_workers=2) as pool:  # two slamlab processes at most
         rows = list(pool.map(lambda job: run_one(clfs[job[0]], job[1], args.out / "runs", args.overrides), jobs))
     table = pd.DataFrame([{"world_seed": w, "scale": args.scale, "overrides": " ".join(args.overrides), **r} for (w, _), r in zip(jobs, rows)])
-    stem = log_stem(args.scale, "-".join(map(str, worlds)), args.lidar, args.people, args.defect)  # one world or "0-1-2"
+    stem = log_stem(args.scale, "-".join(map(str, worlds)), args.lidar, args.people, args.defect, args.layout)  # one world or "0-1-2"
     csv = args.out / f"sim_carmen_{stem}_{time.strftime('%Y%m%d-%H%M%S')}.csv"  # one per invocation
     write_text(csv, table.to_csv(index=False))
     shown = table.drop(columns=["run_dir"])

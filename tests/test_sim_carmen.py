@@ -125,3 +125,34 @@ def test_each_defect_does_to_the_log_what_it_says_and_nothing_else():
     assert 0.015 < changed.mean() < 0.025 and spikes.ranges[changed].max() <= 3.0
     assert np.array_equal(sim_carmen.with_defect(log, "spikes", sick).ranges, spikes.ranges)  # seeded
     assert sim_carmen.log_stem(2.0, 1, "sick", 0, "reset") == "loops2x_w1_reset"
+
+
+def test_the_campus_world_keeps_its_streets_clear_and_its_scans_see_open_space():
+    from slamlab.datasets.sim.campus import STREET_CLEAR_M, build_campus
+    from slamlab.datasets.sim.raycast import cast_scans
+    from slamlab.datasets.sim.world import _segment_distance
+
+    world = build_campus(0, scale=2.0)
+    assert world.layout == "campus" and np.array_equal(build_campus(0, scale=2.0).boxes, world.boxes)  # seeded
+    assert not np.array_equal(build_campus(1, scale=2.0).boxes, world.boxes)
+    # the figure-eight from the origin along +x, 856 m at scale 2, and nothing within STREET_CLEAR_M of it
+    route = world.route
+    assert np.allclose(route[0], 0.0) and route[1, 1] == 0.0 and route[1, 0] > 0
+    assert np.allclose(route[-1], route[0]) and 800 < np.hypot(*np.diff(route, axis=0).T).sum() < 900
+    legs = [((a[0], a[1]), (b[0], b[1])) for a, b in zip(route[:-1], route[1:])]
+    assert min(_segment_distance(list(b), leg) for b in world.boxes for leg in legs) >= STREET_CLEAR_M - 1e-9
+    counts = np.bincount(world.kind, minlength=3)
+    assert counts[0] >= 20 and counts[1] >= 50 and counts[2] >= 5  # buildings, trees and lamp posts, cars and hedges
+    assert (world.boxes[:, 4] > sim_carmen.LIDAR_Z_M).all()  # the wheeled robot's lidar sees every obstacle
+    # the SICK along the route: walls and trees, and much of each scan returns nothing within 30 m
+    k = np.linspace(0, len(route) - 2, 9).astype(int)
+    T = np.tile(np.eye(4), (len(k), 1, 1))
+    T[:, :2, 3] = route[k] + 0.5 * (route[k + 1] - route[k])
+    heading = np.arctan2(*(route[k + 1] - route[k])[:, ::-1].T)
+    T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = np.cos(heading), -np.sin(heading), np.sin(heading), np.cos(heading)
+    T[:, 2, 3] = sim_carmen.LIDAR_Z_M
+    sick = sim_carmen.LIDARS["sick"]
+    ranges, ids = cast_scans(T, sick.angles, world.boxes, np.zeros((len(k), 0, 4)), sick.max_m)
+    open_share = (ids == -1).mean()
+    assert 0.2 < open_share < 0.9 and (ids >= 0).any(axis=1).all()
+    assert sim_carmen.log_stem(2.0, 1, "lms291", 0, "", "campus") == "campus2x_w1_lms291"
