@@ -163,6 +163,7 @@ def filter_metrics(seq: Sequence, result: SlamResult, cfg: DictConfig) -> RunMet
         map_memory={k: v for k, v in result.extras.items() if k.startswith("map_")},
         odometry_scale=result.extras.get("odometry_scale"),
         odometry_jumps=result.extras.get("odometry_jumps") or None,  # absent when the odometry never jumped
+        thin_scans=thin.as_dict() if (thin := result.extras.get("thin_scans")) is not None else None,  # absent unless worth a warning
         graph=result.extras.get("graph"),
     )
 

@@ -100,3 +100,18 @@ def test_odometry_jumps_are_named_in_the_summary_and_listed_in_the_metrics(tmp_p
     m.pop("odometry_jumps")
     (d / "metrics.json").write_text(json.dumps(m))
     assert "odometry jumps" not in write_run_report(d).read_text()
+
+
+def test_thin_scans_are_named_in_the_summary(tmp_path: Path) -> None:
+    """A run whose scans had too few returns to match (slam/thin_scans.py) says how many of its
+    steps and where the longest stretch lies among its headline numbers; a run without says nothing."""
+    d = make_run_dir(tmp_path / "run")
+    m = json.loads((d / "metrics.json").read_text())
+    m["thin_scans"] = {"steps": 1223, "share": 0.7078, "min_returns": 20, "longest_m": 81.64, "from_s": 230.6, "to_s": 392.6}
+    (d / "metrics.json").write_text(json.dumps(m))
+    page = html.unescape(write_run_report(d).read_text())
+    assert "steps whose scans had fewer than 20 returns (on odometry alone)" in page
+    assert "1223 (71 %); the longest stretch 82 m, 231-393 s into the run" in page
+    m.pop("thin_scans")
+    (d / "metrics.json").write_text(json.dumps(m))
+    assert "fewer than 20 returns" not in write_run_report(d).read_text()

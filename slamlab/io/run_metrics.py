@@ -54,6 +54,7 @@ class RunMetrics:
     map_memory: dict[str, Any] | None = None  # MB and tile counts of the map(s)
     odometry_scale: float | None = None  # the best particle's learnt odometry scale at the end (motion.scale_gain_per_m > 0)
     odometry_jumps: list[dict[str, Any]] | None = None  # odometry increments taken as a reset of its frame, not motion (scan, t_s, m, deg; steps.odom_jump_m)
+    thin_scans: dict[str, Any] | None = None  # processed steps whose scans had too few returns to match, when many (steps, share, min_returns, longest_m, from_s, to_s; slam/thin_scans.py)
     graph: dict[str, Any] | None = None  # filter=graph: nodes, submaps, loop searches and closures by status, optimisations and their time
     cpu_time_s: float | None = None  # SLAM filter loop, CPU (s)
     # --- accuracy sections (slamlab.eval); absent where the dataset cannot score them ---

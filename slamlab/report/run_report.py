@@ -146,6 +146,12 @@ def _cards(run: RunDir) -> list[tuple[str, str]]:
         shown = "; ".join(f"scan {j.get('scan')}: {fmt_number(j.get('m'))} m, {fmt_number(j.get('deg'))}°" for j in jumps[:MAX_JUMPS_SHOWN])
         more = f"; {len(jumps) - MAX_JUMPS_SHOWN} more" if len(jumps) > MAX_JUMPS_SHOWN else ""
         out.append(("odometry jumps taken as resets, not motion", shown + more))
+    thin = m.get("thin_scans")
+    if isinstance(thin, dict) and thin:  # scans with too few returns to match: the path rests on odometry there (slam/thin_scans.py)
+        out.append((f"steps whose scans had fewer than {thin.get('min_returns')} returns (on odometry alone)",
+                    f"{fmt_number(thin.get('steps'))} ({100 * float(thin.get('share', float('nan'))):.0f} %); the longest stretch "
+                    f"{float(thin.get('longest_m', float('nan'))):.0f} m, {float(thin.get('from_s', float('nan'))):.0f}-"
+                    f"{float(thin.get('to_s', float('nan'))):.0f} s into the run"))
     mem = m.get("map_memory") if isinstance(m.get("map_memory"), dict) else {}
     if "map_mb" in mem:
         out.append(("map MB (end / peak)", f"{fmt_number(mem['map_mb'])} / {fmt_number(mem.get('map_peak_mb', float('nan')))}"))

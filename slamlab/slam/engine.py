@@ -267,6 +267,7 @@ def _run_filter(sequence: Sequence, c: Components, progress: Callable[[int, int]
             "neff_min": float(np.min(rows["neff"])),
             "filter": c.filter.name,
             "odometry_jumps": plan.jumps_up_to(len(odom)),
+            "thin_scans": plan.thin_up_to(n_steps),
             **({} if scales is None else {"odometry_scale": rows["odometry_scale"][-1]}),
             "matcher_map_reads": int(c.matcher.map_reads) if slam else 0,
             **map_memory,

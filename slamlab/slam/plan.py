@@ -4,7 +4,8 @@ it processes.
 - `Components`: the checked pieces of one run, built once at the application edge
   (`slamlab.assemble`) from the config groups;
 - `plan_steps`: the scans of the run (`steps.max_scans`), their times and odometry (its jumps
-  bridged: `slam.odometry_jumps`), and the processed steps (`steps.select_steps`, cut at `steps.max_steps`);
+  bridged: `slam.odometry_jumps`), and the processed steps (`steps.select_steps`, cut at `steps.max_steps`),
+  with the stretches where their scans had too few returns to match (`slam.thin_scans`);
 - `BetweenScans`: the scans between two processed steps, projected and prepared a chunk of
   steps at a time (`steps.between=match`).
 The particle filters' loop (`slam.engine`) and the graph's (`slam.graph.run`) both start here.
@@ -28,8 +29,9 @@ from slamlab.slam.matcher import MatchPoints, Matcher
 from slamlab.slam.motion import MotionModel
 from slamlab.slam.odometry_jumps import OdometryJump, bridge_jumps, find_jumps
 from slamlab.slam.resample import Resampler
-from slamlab.slam.scan import ScanBatch
+from slamlab.slam.scan import ScanBatch, range_limits
 from slamlab.slam.steps import select_steps
+from slamlab.slam.thin_scans import THIN_RETURNS, ThinScans, thin_stretches, usable_returns
 from slamlab.slam.weighting import Weighting
 
 log = logging.getLogger(__name__)
@@ -72,17 +74,25 @@ class StepPlan:
     odometry: FloatArray  # (N, 3) x m, y m, theta rad: the log's, its jumps bridged (`odometry_jumps`)
     step_scans: np.ndarray  # (K,) indices of the processed scans
     odometry_jumps: list[OdometryJump]  # the jumps taken as no motion (`steps.odom_jump_m` / `odom_jump_rad`)
+    step_returns: np.ndarray  # (K,) each processed step's usable returns (`slam.thin_scans`)
 
     def jumps_up_to(self, n_scans: int) -> list[dict]:
         """The jumps among the first `n_scans` scans (a run stopped early ends there), as
         metrics.json's `odometry_jumps` lists them."""
         return [jump.as_dict() for jump in self.odometry_jumps if jump.scan < n_scans]
 
+    def thin_up_to(self, n_steps: int) -> ThinScans | None:
+        """The first `n_steps` processed steps' thin scans (`slam.thin_scans`), when worth a
+        warning (metrics.json's `thin_scans`), else None."""
+        thin = thin_stretches(self.step_returns[:n_steps], self.step_scans[:n_steps], self.odometry, self.times)
+        return thin if thin is not None and thin.worth_a_warning else None
+
 
 def plan_steps(sequence: Sequence, c: Components) -> StepPlan:
     """The scans of a run: the first `steps.max_scans` scans, and with `steps.max_steps` the
     scans up to the last processed one; their odometry with each jump taken as no motion
-    (`slam.odometry_jumps`, each named in a warning)."""
+    (`slam.odometry_jumps`, each named in a warning); a warning when the steps' scans had too
+    few returns to match for long (`slam.thin_scans`)."""
     scans = sequence.scans if c.max_scans is None else sequence.scans[: c.max_scans]
     if not scans:
         raise ConfigError("steps.max_scans", f"sequence {sequence.name!r} has no scans to process")
@@ -102,7 +112,16 @@ def plan_steps(sequence: Sequence, c: Components) -> StepPlan:
                     sequence.name, jump.m, np.degrees(jump.rad), jump.scan - 1, jump.scan, jump.t_s, c.odom_jump_m, c.odom_jump_rad)
     if len(jumps) > MAX_JUMPS_LOGGED:
         log.warning("%s: %d more odometry jumps taken as resets (metrics.json: odometry_jumps)", sequence.name, len(jumps) - MAX_JUMPS_LOGGED)
-    return StepPlan(scans, times, odom, step_scans, jumps)
+    lo, hi = range_limits(c.map, sequence)
+    plan = StepPlan(scans, times, odom, step_scans, jumps, usable_returns(scans, step_scans, lo, hi))
+    thin = plan.thin_up_to(len(step_scans))
+    if thin is not None:
+        log.warning("%s: %d of the %d processed scans (%.0f %%) had fewer than %d returns within %g-%g m, too few to match; the "
+                    "longest such stretch, %.1f m of odometry from %.1f to %.1f s into the run, rests on the odometry alone, and a loop "
+                    "through it may stay open where the map consistency check cannot see it (metrics.json: thin_scans)",
+                    sequence.name, thin.steps, len(step_scans), 100 * thin.share, THIN_RETURNS, lo, hi, thin.longest_m,
+                    thin.from_s, thin.to_s)
+    return plan
 
 
 class BetweenScans:
