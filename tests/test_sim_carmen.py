@@ -127,23 +127,34 @@ def test_each_defect_does_to_the_log_what_it_says_and_nothing_else():
     assert sim_carmen.log_stem(2.0, 1, "sick", 0, "reset") == "loops2x_w1_reset"
 
 
-def test_the_campus_world_keeps_its_streets_clear_and_its_scans_see_open_space():
+def test_the_campus_world_keeps_its_streets_and_sidewalks_clear_and_its_scans_see_open_space():
     from slamlab.datasets.sim.campus import STREET_CLEAR_M, build_campus
+    from slamlab.datasets.sim.people import RADIUS_M
     from slamlab.datasets.sim.raycast import cast_scans
     from slamlab.datasets.sim.world import _segment_distance
 
     world = build_campus(0, scale=2.0)
     assert world.layout == "campus" and np.array_equal(build_campus(0, scale=2.0).boxes, world.boxes)  # seeded
     assert not np.array_equal(build_campus(1, scale=2.0).boxes, world.boxes)
-    # the figure-eight from the origin along +x, 856 m at scale 2, and nothing within STREET_CLEAR_M of it
+    # the figure-eight from the origin along +x, 856 m at scale 2
     route = world.route
     assert np.allclose(route[0], 0.0) and route[1, 1] == 0.0 and route[1, 0] > 0
     assert np.allclose(route[-1], route[0]) and 800 < np.hypot(*np.diff(route, axis=0).T).sum() < 900
-    legs = [((a[0], a[1]), (b[0], b[1])) for a, b in zip(route[:-1], route[1:])]
-    assert min(_segment_distance(list(b), leg) for b in world.boxes for leg in legs) >= STREET_CLEAR_M - 1e-9
     counts = np.bincount(world.kind, minlength=3)
     assert counts[0] >= 20 and counts[1] >= 50 and counts[2] >= 5  # buildings, trees and lamp posts, cars and hedges
     assert (world.boxes[:, 4] > sim_carmen.LIDAR_Z_M).all()  # the wheeled robot's lidar sees every obstacle
+    for scale in (1.5, 2.0, 3.0):
+        for seed in range(3):
+            w = build_campus(seed, scale)
+            legs = [((a[0], a[1]), (b[0], b[1])) for a, b in zip(w.route[:-1], w.route[1:])]
+            assert min(_segment_distance(list(b), leg) for b in w.boxes for leg in legs) >= STREET_CLEAR_M - 1e-9
+            # people pace 0.65 m to either side of each lane: a person's cylinder clear of every box and of the route
+            sides = [((a[0] + dx, a[1] + dy), (b[0] + dx, b[1] + dy)) for a, b in w.lanes
+                     for dx, dy in (((0, 0.65), (0, -0.65)) if a[1] == b[1] else ((0.65, 0), (-0.65, 0)))]
+            assert min(_segment_distance(list(b), lane) for b in w.boxes for lane in sides) > RADIUS_M
+            assert min(_segment_distance([*lane[0], *lane[0]], leg) for lane in sides for leg in legs) > RADIUS_M
+            x0, y0, x1, y1 = w.bounds  # every box within the world's bounds
+            assert (w.boxes[:, 0] >= x0).all() and (w.boxes[:, 1] >= y0).all() and (w.boxes[:, 2] <= x1).all() and (w.boxes[:, 3] <= y1).all()
     # the SICK along the route: walls and trees, and much of each scan returns nothing within 30 m
     k = np.linspace(0, len(route) - 2, 9).astype(int)
     T = np.tile(np.eye(4), (len(k), 1, 1))

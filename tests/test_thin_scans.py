@@ -12,6 +12,7 @@ from slamlab.assemble import build_components
 from slamlab.frames import Sequence
 from slamlab.pipeline import filter_metrics
 from slamlab.slam.engine import run_slam
+from slamlab.slam.scan import scan_to_points
 from slamlab.slam.thin_scans import THIN_RETURNS, WARN_M, WARN_SHARE, thin_stretches, usable_returns
 from test_slam_engine import _cfg, _room_sequence
 
@@ -30,9 +31,9 @@ def test_the_longest_stretch_runs_between_the_steps_with_enough_returns_around_i
     returns[70] = THIN_RETURNS  # enough
     thin = thin_stretches(returns, steps, odom, times)
     assert (thin.steps, thin.share, thin.longest_m) == (5, 0.05, 8.0)
-    assert (thin.from_s, thin.to_s) == (10.0, 12.0)  # its first and last thin step, s since the first scan
+    assert (thin.from_s, thin.to_s) == (9.0, 13.0)  # the same stretch (steps at 18 m and 26 m), s since the first scan
     assert thin.worth_a_warning  # 5 % of the steps
-    assert thin.as_dict() == {"steps": 5, "share": 0.05, "min_returns": THIN_RETURNS, "longest_m": 8.0, "from_s": 10.0, "to_s": 12.0}
+    assert thin.as_dict() == {"steps": 5, "share": 0.05, "min_returns": THIN_RETURNS, "longest_m": 8.0, "from_s": 9.0, "to_s": 13.0}
     returns[[40, 60]] = 150
     few = thin_stretches(returns, steps, odom, times)
     assert few.share < WARN_SHARE and few.longest_m < WARN_M and not few.worth_a_warning
@@ -42,10 +43,16 @@ def test_the_longest_stretch_runs_between_the_steps_with_enough_returns_around_i
     # a thin first or last step: the stretch is measured from / to the run's end
     ends = np.full(len(steps), 150)
     ends[[0, 1, 99]] = 0
-    assert thin_stretches(ends, steps, odom, times).longest_m == 4.0
+    first = thin_stretches(ends, steps, odom, times)
+    assert (first.longest_m, first.from_s, first.to_s) == (4.0, 0.0, 2.0)
+    ends[:2] = 150
+    last = thin_stretches(ends, steps, odom, times)
+    assert (last.longest_m, last.from_s, last.to_s) == (2.0, 98.0, 99.0)
+    sparse = thin_stretches(np.array([150, 0, 150]), np.array([0, 6, 12]), odom, times)  # steps 6 m apart: one thin step is 12 m
+    assert sparse.longest_m == 12.0 and sparse.worth_a_warning
 
 
-def test_usable_returns_count_valid_beams_within_the_range_limits():
+def test_usable_returns_are_the_points_the_matcher_gets():
     seq = _room_sequence(8)
     f = seq.scans[3]
     ranges = f.ranges.copy()
@@ -55,8 +62,13 @@ def test_usable_returns_count_valid_beams_within_the_range_limits():
     valid[20:30] = False
     scans = list(seq.scans)
     scans[3] = dataclasses.replace(f, ranges=ranges, valid=valid)
-    n = usable_returns(scans, np.array([2, 3]), 0.1, 30.0)
+    n = usable_returns(scans, np.array([2, 3]), None, 0.1, 30.0, 0.1)
     assert n[0] == int(f.valid.sum()) and n[1] == n[0] - 30
+    # a head-mounted lidar pitched down: the beams that hit the floor are no use to the matcher
+    pitched = dataclasses.replace(f, pitch=0.5)
+    on_floor = usable_returns([pitched], np.array([0]), 1.2, 0.1, 30.0, 0.1)[0]
+    want = len(scan_to_points(pitched, 1.2, 0.1, 30.0, 0.1).xy)
+    assert on_floor == want < int(f.valid.sum())
 
 
 def _blind(seq: Sequence, first: int) -> Sequence:
@@ -87,10 +99,19 @@ def test_a_run_whose_scans_go_blind_says_so_and_a_clean_run_says_nothing(overrid
     n_steps = int(result.extras["processed_steps"])
     steps = np.asarray(result.extras["step_scans"])
     assert thin.steps == int((steps >= 40).sum()) and thin.share == pytest.approx(thin.steps / n_steps)
-    assert thin.from_s == pytest.approx(seq.scans[int(steps[steps >= 40][0])].t - seq.scans[0].t)
+    before = int(steps[steps < 40][-1])  # the stretch runs from the last step with enough returns to the end
+    assert thin.from_s == pytest.approx(seq.scans[before].t - seq.scans[0].t)
+    assert thin.to_s == pytest.approx(seq.scans[int(steps[-1])].t - seq.scans[0].t)
+    path = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(result.odometry[:, :2], axis=0).T))])
+    assert thin.longest_m == pytest.approx(path[int(steps[-1])] - path[before])
     listed = filter_metrics(blind, result, cfg).to_dict()["thin_scans"]
     assert listed == thin.as_dict()
     assert f"room: {thin.steps} of the {n_steps} processed scans" in caplog.text and "too few to match" in caplog.text
     # a run that ends before the scans go blind has nothing to say
     early = run_slam(blind, build_components(_cfg(*overrides, "steps.max_scans=38")))
     assert early.extras["thin_scans"] is None
+    # dead reckoning matches nothing: nothing to say of its scans
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        dead = run_slam(blind, build_components(_cfg(*overrides, "mode=odometry")))
+    assert dead.extras["thin_scans"] is None and "too few to match" not in caplog.text

@@ -74,7 +74,7 @@ class StepPlan:
     odometry: FloatArray  # (N, 3) x m, y m, theta rad: the log's, its jumps bridged (`odometry_jumps`)
     step_scans: np.ndarray  # (K,) indices of the processed scans
     odometry_jumps: list[OdometryJump]  # the jumps taken as no motion (`steps.odom_jump_m` / `odom_jump_rad`)
-    step_returns: np.ndarray  # (K,) each processed step's usable returns (`slam.thin_scans`)
+    step_returns: np.ndarray | None  # (K,) each processed step's usable returns (`slam.thin_scans`); None: not counted (mode is not slam)
 
     def jumps_up_to(self, n_scans: int) -> list[dict]:
         """The jumps among the first `n_scans` scans (a run stopped early ends there), as
@@ -84,6 +84,8 @@ class StepPlan:
     def thin_up_to(self, n_steps: int) -> ThinScans | None:
         """The first `n_steps` processed steps' thin scans (`slam.thin_scans`), when worth a
         warning (metrics.json's `thin_scans`), else None."""
+        if self.step_returns is None:
+            return None
         thin = thin_stretches(self.step_returns[:n_steps], self.step_scans[:n_steps], self.odometry, self.times)
         return thin if thin is not None and thin.worth_a_warning else None
 
@@ -113,12 +115,14 @@ def plan_steps(sequence: Sequence, c: Components) -> StepPlan:
     if len(jumps) > MAX_JUMPS_LOGGED:
         log.warning("%s: %d more odometry jumps taken as resets (metrics.json: odometry_jumps)", sequence.name, len(jumps) - MAX_JUMPS_LOGGED)
     lo, hi = range_limits(c.map, sequence)
-    plan = StepPlan(scans, times, odom, step_scans, jumps, usable_returns(scans, step_scans, lo, hi))
+    matched = c.mode == "slam"  # dead reckoning and predict match nothing: nothing to say of their scans
+    returns = usable_returns(scans, step_scans, sequence.body_height_m, lo, hi, c.map.ground_threshold_m) if matched else None
+    plan = StepPlan(scans, times, odom, step_scans, jumps, returns)
     thin = plan.thin_up_to(len(step_scans))
     if thin is not None:
-        log.warning("%s: %d of the %d processed scans (%.0f %%) had fewer than %d returns within %g-%g m, too few to match; the "
-                    "longest such stretch, %.1f m of odometry from %.1f to %.1f s into the run, rests on the odometry alone, and a loop "
-                    "through it may stay open where the map consistency check cannot see it (metrics.json: thin_scans)",
+        log.warning("%s: %d of the %d processed scans (%.1f %%) had fewer than %d usable returns (%g-%g m), too few to match; "
+                    "the longest such stretch, %.1f m of odometry from %.1f to %.1f s into the run, rests on the odometry alone, "
+                    "and a loop through it may stay open where the map consistency check cannot see it (metrics.json: thin_scans)",
                     sequence.name, thin.steps, len(step_scans), 100 * thin.share, THIN_RETURNS, lo, hi, thin.longest_m,
                     thin.from_s, thin.to_s)
     return plan

@@ -6,13 +6,15 @@ path there is the odometry's, and a loop through such a stretch may not close. N
 the map contradicts itself when the second pass lies where the first never mapped, so the
 consistency verdict (`eval.consistency`) cannot see it: a probe with a 5.6 m Hokuyo URG
 driven through the simulated campus (`benchmarks/sim_carmen.py --layout campus --lidar urg`)
-has fewer than 20 returns in 71 % of its scans, its longest such stretch 81 m; its relation
+has fewer than 20 returns in 71 % of its steps, its longest such stretch 82 m; its relation
 error is 11 m, worse than the odometry's 8 m, and its verdict "consistent". So a run says so
 itself: `thin_stretches` finds the processed steps whose scan has fewer than `THIN_RETURNS`
-usable returns (valid, within the run's range limits) and the longest stretch of them, by
-the odometry's path from the last step with enough returns before it to the first one
-after it. A run warns, and metrics.json lists `thin_scans`, when such steps are
-`WARN_SHARE` of its steps or more, or a stretch reaches `WARN_M`. Intel, ACES and the
+usable returns (the points the matcher gets: valid beams within the run's range limits,
+above the ground threshold where the sequence knows the body's height) and the longest
+stretch of them, from the last step with enough returns before it to the first one after
+it (the path the odometry alone carries). A run in `mode=slam` warns, and metrics.json lists
+`thin_scans`, when such steps are `WARN_SHARE` of its steps or more, or a stretch is `WARN_M`
+or longer (with steps 5 m or more apart, one thin step is such a stretch). Intel, ACES and the
 Freiburg hospital have no thin scan (their fewest returns: 123, 161, 27); the SICK on the
 simulated campus at the preset's steps has 0.3-1.8 % of its steps thin, the longest stretch
 8.2 m (worlds 0 and 2 at 2x, world 0 at 3x): no warning.
@@ -27,7 +29,9 @@ import numpy as np
 
 from slamlab.frames import ScanFrame
 from slamlab.geometry import FloatArray
+from slamlab.slam.scan import scans_to_points
 
+CHUNK = 512  # scans projected at once to count their points
 THIN_RETURNS = 20  # a scan with fewer usable returns than this gives scan matching too little to hold a pose on
 WARN_SHARE = 0.05  # warn when this share of the processed steps is thin ...
 WARN_M = 10.0  # ... or when the odometry alone carries the path this far (m) between two steps with enough returns
@@ -36,9 +40,9 @@ WARN_M = 10.0  # ... or when the odometry alone carries the path this far (m) be
 @dataclass(frozen=True, slots=True)
 class ThinScans:
     """The processed steps whose scan had fewer than `THIN_RETURNS` usable returns: how many,
-    their `share` of the steps, and the longest stretch of consecutive ones: `longest_m` of
-    odometry path between the steps with enough returns around it, from `from_s` to `to_s`
-    (s since the run's first scan)."""
+    their `share` of the steps, and the longest stretch of consecutive ones, measured between
+    the steps with enough returns around it (the path the odometry alone carries): `longest_m`
+    of odometry path, from `from_s` to `to_s` (s since the run's first scan)."""
 
     steps: int
     share: float
@@ -56,13 +60,14 @@ class ThinScans:
                 "from_s": self.from_s, "to_s": self.to_s}
 
 
-def usable_returns(scans: SequenceOf[ScanFrame], which: np.ndarray, min_m: float, max_m: float) -> np.ndarray:
-    """(K,) int: for the scans `which` (indices), the beams that returned within [min_m, max_m] m."""
+def usable_returns(scans: SequenceOf[ScanFrame], which: np.ndarray, body_height_m: float | None, min_m: float, max_m: float,
+                   ground_threshold_m: float) -> np.ndarray:
+    """(K,) int: for the scans `which` (indices), the points the matcher gets from each
+    (`scan.scans_to_points` with the run's range limits, m, and ground threshold)."""
     out = np.empty(len(which), dtype=np.int64)
-    for k, i in enumerate(which):
-        f = scans[int(i)]
-        r = np.asarray(f.ranges)
-        out[k] = int(np.count_nonzero(np.asarray(f.valid) & (r >= min_m) & (r <= max_m)))
+    for a in range(0, len(which), CHUNK):
+        frames = [scans[int(i)] for i in which[a:a + CHUNK]]
+        out[a:a + len(frames)] = [len(p.xy) for p in scans_to_points(frames, body_height_m, min_m, max_m, ground_threshold_m)]
     return out
 
 
@@ -79,7 +84,7 @@ def thin_stretches(returns: np.ndarray, step_scans: np.ndarray, odom: FloatArray
     for a, b in zip(edges[::2], edges[1::2]):  # thin steps a..b-1; the steps with enough returns around them: a-1 and b
         lo, hi = max(a - 1, 0), min(b, len(thin) - 1)
         if at[hi] - at[lo] > best[0]:
-            best = (float(at[hi] - at[lo]), a, b - 1)
-    longest_m, a, b = best
+            best = (float(at[hi] - at[lo]), lo, hi)
+    longest_m, lo, hi = best
     return ThinScans(steps=int(thin.sum()), share=float(thin.mean()), longest_m=longest_m,
-                     from_s=float(times[step_scans[a]] - times[0]), to_s=float(times[step_scans[b]] - times[0]))
+                     from_s=float(times[step_scans[lo]] - times[0]), to_s=float(times[step_scans[hi]] - times[0]))

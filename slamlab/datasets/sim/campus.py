@@ -6,12 +6,15 @@ to hold the match along it.
 
 Plan (metres, times `scale`; 100 x 80 m at scale 1, 200 x 160 m at 2): street centre lines
 run CAMPUS_INSET (15 %) inside the campus edge as a ring, plus one north-south street
-through the middle, so the route is the `loops` building's figure-eight (808 m at scale 2),
+through the middle, so the route is the `loops` building's figure-eight (856 m at scale 2),
 coming back to mapped places after a third and two thirds of it. Buildings (10-30 m, some
 L-shaped; their sizes do not scale) stand in the blocks between the streets and in the bands
 outside the ring, 6 m or more from any street centre line; nothing else stands within
 STREET_CLEAR_M of one, so the route never collides. No outer wall: past the campus edge the
-lidar sees nothing.
+lidar sees nothing (a building in a band outside the ring may reach a few metres past it;
+`World.bounds` holds every box). People (`--people`) pace sidewalks SIDEWALK_M to one side of
+each street between its junctions (`World.lanes`), clear of the route and of everything
+standing beside the street.
 
 Every obstacle is a box [x0, y0, x1, y1, height] (`World.boxes`), kind 0 building, 1 tree or
 lamp post, 2 car or hedge; all stand taller than a wheeled robot's lidar (0.35 m).
@@ -135,12 +138,15 @@ def build_campus(seed: int, scale: float = 2.0, texture_res_m: float = 0.25) -> 
     boxes, kind, colors = _coloured_boxes(rng, buildings, objs, kinds, shift)
     floor = floor_texture(rng, W, H, texture_res_m, origin=(-shift[0], -shift[1]), n_discs=0, n_stripes=0)
     sh = (float(shift[0]), float(shift[1]))
+    # the campus area, grown to hold every box (a building's wing may reach past the edge)
+    bounds = (min(-sh[0], float(boxes[:, 0].min())), min(-sh[1], float(boxes[:, 1].min())),
+              max(W - sh[0], float(boxes[:, 2].max())), max(H - sh[1], float(boxes[:, 3].max())))
     return World(
         boxes=boxes,
         colors=colors,
         kind=kind,
         floor=floor,
-        bounds=(-sh[0], -sh[1], W - sh[0], H - sh[1]),
+        bounds=bounds,
         loop_min=(xw - sh[0], ys - sh[1]),
         loop_max=(xe - sh[0], yn - sh[1]),
         layout="campus",

@@ -17,7 +17,9 @@ def walking_people(world: World, n: int, seed: int, t_rel: np.ndarray) -> np.nda
     start): people pacing up and down at 0.6-1.0 m/s, each on a lane of its own choosing. In the
     `loops` layout a lane is a corridor between two junctions, 0.65 m to either side of its
     centre line (`World.lanes`: clear of the route and of everything standing in the
-    corridor); in the `ring` layout a leg of the loop, 0.9 m to the side of the robot's route.
+    corridor); in the `campus` layout (`sim.campus`) a street between two junctions, 0.65 m to
+    either side of a sidewalk line 2 m off its centre line; in the `ring` layout a leg of the
+    loop, 0.9 m to the side of the robot's route.
     Seeded by `seed` alone: the same people for the same seed whatever else is simulated."""
     out = np.zeros((t_rel.size, n, 4))
     if n == 0:
