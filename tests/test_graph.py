@@ -929,3 +929,10 @@ def test_hits_near_the_lidar_stay_out_of_the_online_map_and_its_redraw_but_not_o
 
     with pytest.raises(ConfigError, match="filter.near_hits_m"):
         GraphFilterConfig(near_hits_m=-0.5)
+
+
+def test_a_learnt_yaw_drift_is_the_simulated_odometrys_and_lands_in_the_metrics(loop_log):
+    # sim_carmen's odometry turns 1 degree a metre (and ~0.1 more from its time drift) more than the robot did
+    learnt = _run(loop_log, "filter.yaw_drift_gain_per_m=0.05", "steps.max_scans=3000").extras["graph"]
+    assert -1.4 < math.degrees(learnt["yaw_drift_rad_per_m"]) < -0.8
+    assert "yaw_drift_rad_per_m" not in _run(loop_log, "steps.max_scans=300").extras["graph"]  # absent when off

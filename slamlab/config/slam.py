@@ -336,6 +336,12 @@ class GraphFilterConfig:
     # Intel (worst 0.0206 -> 0.0186 m at 0.5 m steps) and sim_loops 2.0 (mean ATE over seeds 0-9 0.30 -> 0.21 m), but the
     # online path worse on both logs (ACES worst causal 0.045 -> 0.071 m: its online heading drifts 1-4 degrees before
     # the loop closes, against under 1), and a corridor probe lost a loop
+    yaw_drift_gain_per_m: float = 0.0  # local_map=map or submap: learn the odometry's yaw drift per metre at this gain (1/m;
+    # slam/odometry_yaw.py) and add it to each step's predicted turn; 0 = off. For open ground mapped at fine steps, where a
+    # scan keeps few points and a node's match keeps the predicted yaw: the campus probe at 2x and 0.25 m steps at 0.02,
+    # aligned ATE 0.17-1.20 -> 0.06-0.22 m (better on five of seven campus worlds, 3x world 3 worse); at the preset's 0.5 m
+    # a little worse (0.08-0.15 -> 0.11-0.17 m) and ACES's online path too (mean causal over nine steps 0.051 -> 0.058 m;
+    # Intel the same), so off in the preset (2026-12-02, benchmarks/RESULTS.md)
     near_hits_m: float = 0.0  # local_map=map: scan hits nearer than this to the lidar (m) stay out of the online map and its
     # redraws (the submaps and the final map keep them; 0 = none left out). Why: a person walking beside the robot leaves
     # hits beside its path that a forward-looking lidar does not see through again, and local SLAM holds the robot back
@@ -459,13 +465,15 @@ class GraphFilterConfig:
         for name in ("search_resolution_m", "window_max_m", "ambiguity_m", "ambiguity_rad", "loop_sigma_m", "loop_sigma_rad", "trust_m", "trust_rad", "redraw_m", "redraw_rad",
                      "local_sigma_m", "local_sigma_rad", "loss_scale", "prune_m", "prune_rad", "consistency_m", "consistency_rad"):
             require_positive(g, name, getattr(self, name))
-        for name in ("near_hits_m", "local_yaw_half_width_rad", "screen_resolution_m", "window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "query_m", "loop_min_path_m", "group_extent_m", "group_span_m",
+        for name in ("near_hits_m", "yaw_drift_gain_per_m", "local_yaw_half_width_rad", "screen_resolution_m", "window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "query_m", "loop_min_path_m", "group_extent_m", "group_span_m",
                      "consistency_per_m", "consistency_rad_per_m", "local_sigma_per_m", "local_sigma_per_rad", "local_sigma_along_per_m", "local_slip_per_m"):
             require_nonnegative(g, name, getattr(self, name))
         for name in ("min_score", "min_refined_score", "ambiguity_ratio"):
             require_fraction(g, name, getattr(self, name))
         require_choice(g, "loss", self.loss, ("cauchy", "huber", "none"))
         require_choice(g, "local_map", self.local_map, ("map", "submap", "particles"))
+        if self.yaw_drift_gain_per_m > 0 and self.local_map == "particles":  # each particle keeps its own motion model there
+            raise ConfigError(f"{g}.yaw_drift_gain_per_m", "is for local_map=map or submap; local_map=particles learns no yaw drift")
         require_choice(g, "wall_at", self.wall_at, ("centre", "hits"))
         require_choice(g, "redraw_frame", self.redraw_frame, ("graph", "online"))
         require_bool(g, "final_match", self.final_match)

@@ -13,7 +13,9 @@ motion prior) moves it to where the scan fits the local map (`filter.local_map`)
 The matched motion between consecutive nodes is the pose graph's local edge, and the chain
 of those motions (the local frame, never redrawn) is where the submaps are built. With
 `motion.scale_gain_per_m` > 0 the odometry's translation is scaled by a scale learnt from the
-matches, as each particle of the particle filters learns its own (`slam.odometry_scale`).
+matches, as each particle of the particle filters learns its own (`slam.odometry_scale`); with
+`filter.yaw_drift_gain_per_m` > 0 its turn is corrected by a yaw drift per metre learnt the
+same way (`slam.odometry_yaw`).
 """
 
 from __future__ import annotations
@@ -23,13 +25,14 @@ from collections.abc import Sequence as SequenceABC
 
 import numpy as np
 
-from slamlab.geometry import FloatArray, se2_between, se2_compose
+from slamlab.geometry import FloatArray, se2_between, se2_compose, wrap_angle
 from slamlab.slam.graph.loops import match_covariance
 from slamlab.slam.graph.small_linalg import from_eig, sym_eig
 from slamlab.slam.graph.submaps import FinishedSubmap, Submaps
 from slamlab.slam.grid import MapSettings, OccupancyGrid
 from slamlab.slam.matcher import LikelihoodFieldMatcher, MatchPoints, voxel_filter
 from slamlab.slam.odometry_scale import learn_scales, scaled_start
+from slamlab.slam.odometry_yaw import learn_yaw_drift
 from slamlab.slam.scan import ScanBatch, ScanPoints, place, points_to_world
 
 
@@ -63,8 +66,10 @@ class LocalSlam:
 
     def __init__(self, matcher: LikelihoodFieldMatcher, settings: MapSettings, submaps: Submaps, local_map: str,
                  start: FloatArray, scale_gain_per_m: float = 0.0, step_matcher: LikelihoodFieldMatcher | None = None,
-                 walls_at_hits: bool = False, near_hits_m: float = 0.0) -> None:
+                 walls_at_hits: bool = False, near_hits_m: float = 0.0, yaw_drift_gain_per_m: float = 0.0) -> None:
         self.matcher = matcher
+        self.yaw_drift_gain_per_m = float(yaw_drift_gain_per_m)  # `filter.yaw_drift_gain_per_m`: 0 = the odometry's turns as they are
+        self.yaw_drift = 0.0  # the learnt odometry yaw drift (rad per metre; `slam.odometry_yaw`)
         self.near_hits_m = float(near_hits_m)  # the online map leaves out hits this near the lidar (`filter.near_hits_m`)
         self.step_matcher = step_matcher or matcher  # each node's own match (`step`): `filter.local_yaw_half_width_rad`
         self.scale_gain_per_m = float(scale_gain_per_m)  # `motion.scale_gain_per_m`: 0 = the odometry as it is
@@ -105,13 +110,18 @@ class LocalSlam:
         start = self.online if self.grid is not None else self.chain
         if self.scale_gain_per_m > 0:  # the learnt odometry scale, as the particle filters learn theirs
             start = scaled_start(start.reshape(1, 3), self.scale, odometry_increment)[0]
+        d = float(np.hypot(odometry_increment[0], odometry_increment[1]))
         predicted = se2_compose(start, odometry_increment)
+        if self.yaw_drift_gain_per_m > 0:  # the learnt yaw drift turns the prediction by b x d
+            predicted[2] = wrap_angle(predicted[2] + self.yaw_drift * d)
         grid = self.grid if self.grid is not None else (self.submaps.matching().grid if self.submaps.active else None)
         matched = self._match(grid, predicted, scan) if grid is not None and len(scan.xy) else predicted
         before = self.online if self.grid is not None else self.chain
         if self.scale_gain_per_m > 0 and grid is not None and len(scan.xy):
             self.scale = learn_scales(self.scale, before.reshape(1, 3), matched.reshape(1, 3), odometry_increment, self.scale_gain_per_m)
         motion = se2_between(before, matched)
+        if self.yaw_drift_gain_per_m > 0 and grid is not None and len(scan.xy):
+            self.yaw_drift = learn_yaw_drift(self.yaw_drift, float(motion[2]), float(odometry_increment[2]), d, self.yaw_drift_gain_per_m)
         if self.grid is not None:
             self.online = matched
             self.chain = se2_compose(self.chain, motion)
