@@ -24,7 +24,7 @@ since their step: a fraction of a step, which their match on the online map abso
 
 from __future__ import annotations
 
-import math
+from slamlab.geometry import wrap_angle
 
 YAW_DRIFT_LIMIT = 0.1  # rad per metre (5.7 degrees): odometry further off than this is a broken log, not a bias
 
@@ -34,7 +34,6 @@ def learn_yaw_drift(drift: float, matched_turn: float, odometry_turn: float, dis
     `odometry_turn` the odometry's (rad), `distance_m` the odometry's distance (m)."""
     if distance_m < 1e-6 or gain_per_m <= 0:
         return drift
-    seen = matched_turn - odometry_turn - drift * distance_m  # what the prediction missed (rad)
-    seen = (seen + math.pi) % (2 * math.pi) - math.pi
+    seen = float(wrap_angle(matched_turn - odometry_turn - drift * distance_m))  # what the prediction missed (rad)
     learnt = drift + min(gain_per_m * distance_m, 1.0) * seen / distance_m
     return min(max(learnt, -YAW_DRIFT_LIMIT), YAW_DRIFT_LIMIT)
