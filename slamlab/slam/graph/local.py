@@ -115,12 +115,13 @@ class LocalSlam:
         if self.yaw_drift_gain_per_m > 0:  # the learnt yaw drift turns the prediction by b x d
             predicted[2] = wrap_angle(predicted[2] + self.yaw_drift * d)
         grid = self.grid if self.grid is not None else (self.submaps.matching().grid if self.submaps.active else None)
-        matched = self._match(grid, predicted, scan) if grid is not None and len(scan.xy) else predicted
+        matches = grid is not None and len(scan.xy) > 0  # a map to match on and points to match: the learnt models learn only then
+        matched = self._match(grid, predicted, scan) if matches else predicted
         before = self.online if self.grid is not None else self.chain
-        if self.scale_gain_per_m > 0 and grid is not None and len(scan.xy):
+        if self.scale_gain_per_m > 0 and matches:
             self.scale = learn_scales(self.scale, before.reshape(1, 3), matched.reshape(1, 3), odometry_increment, self.scale_gain_per_m)
         motion = se2_between(before, matched)
-        if self.yaw_drift_gain_per_m > 0 and grid is not None and len(scan.xy):
+        if self.yaw_drift_gain_per_m > 0 and matches:
             self.yaw_drift = learn_yaw_drift(self.yaw_drift, float(motion[2]), float(odometry_increment[2]), d, self.yaw_drift_gain_per_m)
         if self.grid is not None:
             self.online = matched
