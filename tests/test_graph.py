@@ -119,6 +119,64 @@ def test_the_top_level_bounds_are_each_nodes_pooled_sum_whatever_the_thread_coun
         assert one[q] == int(pool[levels - 1, r[inside], c[inside]].astype(np.int64).sum())
 
 
+def test_the_top_level_bounds_from_phase_planes_are_each_nodes_own_sum_on_random_maps_and_scans():
+    """A wide window's top bounds come from the top level laid out in phase planes
+    (`_top_bounds_planes`): the same integers as summing each node on its own
+    (`_top_bounds_direct`), points off the grid on any side included, on one thread and all;
+    `top_bounds` takes either path and gives the same."""
+    import numba
+
+    from slamlab.slam.graph import branch_bound
+
+    rng = np.random.default_rng(9)
+    threads = numba.get_num_threads()
+    for _ in range(60):
+        grid, rows, cols, wx, wy, levels = _random_case(rng)
+        rows, cols = rows + int(rng.integers(-40, 40)), cols + int(rng.integers(-40, 40))  # scans partly or wholly off the grid
+        pool = max_pool_levels(grid, levels)
+        top = 1 << (levels - 1)
+        direct = branch_bound._top_bounds_direct(pool, rows, cols, wx, wy)
+        planes = branch_bound._phase_planes(pool[-1], top)
+        assert np.array_equal(branch_bound._top_bounds_planes(planes, rows, cols, wx, wy, top), direct)
+        try:
+            numba.set_num_threads(1)
+            assert np.array_equal(branch_bound._top_bounds_planes(planes, rows, cols, wx, wy, top), direct)
+        finally:
+            numba.set_num_threads(threads)
+        assert np.array_equal(top_bounds(pool, rows, cols, wx, wy), direct)
+
+
+def test_side_by_side_returns_each_jobs_result_in_order_on_any_thread_count():
+    """`loops.side_by_side`: what the loop over the jobs gives, in the jobs' order, whether the
+    jobs ran on several threads or one after the other on this one (fewer than two large jobs, or
+    one numba thread: a sweep's parallel jobs)."""
+    import threading
+
+    import numba
+
+    from slamlab.slam.graph.loops import side_by_side
+
+    seen: set[int] = set()
+
+    def work(job: int) -> int:
+        seen.add(threading.get_ident())
+        return job * job
+
+    jobs = list(range(50))
+    assert side_by_side(work, jobs) == [j * j for j in jobs]
+    seen.clear()
+    assert side_by_side(work, jobs, [0] * 49 + [10**9]) == [j * j for j in jobs]  # one large job: nothing to run beside it
+    assert seen == {threading.get_ident()}
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        seen.clear()
+        assert side_by_side(work, jobs) == [j * j for j in jobs]
+        assert seen == {threading.get_ident()}  # one thread: here, in order
+    finally:
+        numba.set_num_threads(threads)
+
+
 @pytest.mark.parametrize("f", [1, 2, 3])
 def test_a_submaps_search_grid_holds_the_largest_field_code_of_each_block_of_cells(f):
     """`search_grid_of`: the coarse grid's cell (i, j) is the max over map cells [f i, f i + f) x
@@ -758,6 +816,17 @@ def test_the_screen_scores_the_submap_a_scan_was_taken_in_above_another_place():
                                             (junction_sm, pose + np.array([3.0, -2.0, 0.4]), 10.0, math.pi)])
     assert search.screened == 2
     assert scores[1] > 0.85 and scores[1] > scores[0] + 0.2
+    # the targets' searches run side by side (`side_by_side`): each its own score, as on one thread
+    import numba
+
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        alone = [search.screen(query, submaps, [target])[0] for target in ((room_sm, np.array([0.0, 0.0, 0.0]), 10.0, math.pi),
+                                                                           (junction_sm, pose + np.array([3.0, -2.0, 0.4]), 10.0, math.pi))]
+    finally:
+        numba.set_num_threads(threads)
+    assert list(scores) == alone
     assert len(search.screen(query[:5], submaps, [(junction_sm, pose, 10.0, math.pi)])) == 1  # too few points: no score
     assert search.screen(query[:5], submaps, [(junction_sm, pose, 10.0, math.pi)])[0] == -1.0
 

@@ -63,15 +63,15 @@ def max_pool_levels(grid, levels):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def place_points(pts, x0, y0, yaws, ox, oy, inv_res):
-    """(Y, M) rows and cols (int64) of the points (M, 2, body frame, m) with the body at (x0,
+    """(Y, M) rows and cols (int32: half the memory of a wide search's 10^3 yaws x 10^3 points) of the points (M, 2, body frame, m) with the body at (x0,
     y0) (m, map frame) and each yaw (Y,) rad, on a grid of origin (ox, oy) m and 1 / inv_res m
     cells: the candidates' points at zero offset."""
     Y = yaws.shape[0]
     M = pts.shape[0]
-    rows = np.empty((Y, M), dtype=np.int64)
-    cols = np.empty((Y, M), dtype=np.int64)
+    rows = np.empty((Y, M), dtype=np.int32)
+    cols = np.empty((Y, M), dtype=np.int32)
     for k in range(Y):
         c = math.cos(yaws[k])
         s = math.sin(yaws[k])
@@ -118,12 +118,27 @@ def _inside_exclusion(k, dx0, dy0, size, ex):
     return False
 
 
-@numba.njit(cache=True, parallel=True)
+PLANE_READS_PER_CELL = 4  # `top_bounds` lays the top level out in phase planes when a search reads it at least
+# this many times per cell (a wide window); below, re-laying it would cost more than it saves
+
+
 def top_bounds(pool, rows, cols, wx, wy):
     """The bounds of every top-level node (`bnb_search`'s first level), yaw after yaw on all
     cores: entry (k * nx + a) * ny + b is the node of yaw k at offsets (-wx + a * top,
     -wy + b * top). On a wide window (tens of metres, every yaw) there are 10^5-10^6 of them
-    and they are most of the search's reads: the deeper levels prune to a few nodes more."""
+    and they are most of the search's reads: the deeper levels prune to a few nodes more.
+    Such a window is summed from the top level's phase planes (`_phase_planes`,
+    `_top_bounds_planes`), a small one node by node (`_top_bounds_direct`): the same integers."""
+    top = 1 << (pool.shape[0] - 1)
+    nodes = rows.shape[0] * ((2 * wx) // top + 1) * ((2 * wy) // top + 1)
+    if nodes * rows.shape[1] >= PLANE_READS_PER_CELL * pool.shape[1] * pool.shape[2]:
+        return _top_bounds_planes(_phase_planes(pool[-1], top), rows, cols, wx, wy, top)
+    return _top_bounds_direct(pool, rows, cols, wx, wy)
+
+
+@numba.njit(cache=True, parallel=True, nogil=True)
+def _top_bounds_direct(pool, rows, cols, wx, wy):
+    """`top_bounds`, each node's sum over the points on its own."""
     L = pool.shape[0]
     Y = rows.shape[0]
     top = 1 << (L - 1)
@@ -134,6 +149,63 @@ def top_bounds(pool, rows, cols, wx, wy):
         for a in range(nx):
             for b in range(ny):
                 out[(k * nx + a) * ny + b] = _level_score(pool, L - 1, rows, cols, k, -wx + a * top, -wy + b * top)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _phase_planes(level, top):
+    """The pooled grid `level` (HP, WP) as top x top phase planes, each transposed:
+    planes[pr, pc, j, i] = level[pr + i * top, pc + j * top] (0 past the grid). The top-level
+    nodes of one yaw lie `top` cells apart, so what one point reads over all of them is one
+    plane's block of consecutive cells (`_top_bounds_planes`) instead of a cell every `top`
+    rows and columns."""
+    HP, WP = level.shape
+    PH = (HP + top - 1) // top
+    PW = (WP + top - 1) // top
+    out = np.zeros((top, top, PW, PH), dtype=np.uint8)
+    for r in range(HP):
+        pr = r % top
+        i = r // top
+        for c in range(WP):
+            out[pr, c % top, c // top, i] = level[r, c]
+    return out
+
+
+@numba.njit(cache=True, parallel=True, nogil=True)
+def _top_bounds_planes(planes, rows, cols, wx, wy, top):
+    """`top_bounds` from the phase planes (`_phase_planes`): for each point, the block of its
+    plane under all the nodes of its yaw added to their sums, column after column of nodes
+    (consecutive cells of the plane onto consecutive entries). Integer sums: the values of
+    `_top_bounds_direct` in any order, on any number of threads."""
+    Y = rows.shape[0]
+    M = rows.shape[1]
+    PW = planes.shape[2]
+    PH = planes.shape[3]
+    pad = top - 1
+    nx = (2 * wx) // top + 1
+    ny = (2 * wy) // top + 1
+    out = np.empty(Y * nx * ny, dtype=np.int64)
+    for k in numba.prange(Y):
+        acc = np.zeros(nx * ny, dtype=np.int32)  # the yaw's sums (M x 255 fits): twice the lanes of int64 adds
+        for i in range(M):
+            R = rows[k, i] - wy + pad  # the point's cell (padded) at the yaw's first node
+            C = cols[k, i] - wx + pad
+            pr = R % top  # floor modulo: the phase of negative cells too
+            pc = C % top
+            i0 = (R - pr) // top
+            j0 = (C - pc) // top
+            b0 = max(0, -i0)  # nodes whose cell lies on the grid
+            b1 = min(ny, PH - i0)
+            a0 = max(0, -j0)
+            a1 = min(nx, PW - j0)
+            if b0 >= b1 or a0 >= a1:
+                continue
+            for a in range(a0, a1):
+                col = planes[pr, pc, j0 + a]
+                base = a * ny
+                for b in range(b0, b1):
+                    acc[base + b] += col[i0 + b]
+        out[k * nx * ny:(k + 1) * nx * ny] = acc
     return out
 
 
@@ -169,7 +241,7 @@ def _ranked(t_score, min_score):
     return keep[np.argsort(-t_score[keep], kind="mergesort")]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _bnb_one(pool, rows, cols, wx, wy, min_score, ex, t_score):
     """`bnb_search` in one share, on this thread: (score, k, dx, dy, nodes)."""
     sc, k, dx, dy, nodes = _bnb_share(pool, rows, cols, wx, wy, min_score, ex, t_score, _ranked(t_score, min_score))
@@ -178,7 +250,7 @@ def _bnb_one(pool, rows, cols, wx, wy, min_score, ex, t_score):
     return sc, k, dx, dy, nodes + t_score.shape[0]
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, nogil=True)
 def _bnb_shares(pool, rows, cols, wx, wy, min_score, ex, t_score, shares):
     """`bnb_search` in `shares` shares on all cores: (score, k, dx, dy, nodes)."""
     ranked = _ranked(t_score, min_score)
@@ -404,6 +476,12 @@ class CorrelativeSearch:
         self.rows, self.cols = place_points(pts, float(window.center[0]), float(window.center[1]), self.yaws,
                                            grid.origin_xy[0], grid.origin_xy[1], 1.0 / res)
         self._top: np.ndarray | None = None
+
+    @property
+    def top_reads(self) -> int:
+        """Cells the top level's bounds read (yaws x top nodes x points): the search's size."""
+        top = 1 << (self.grid.pool.shape[0] - 1)
+        return len(self.yaws) * ((2 * self.wx) // top + 1) * ((2 * self.wy) // top + 1) * self.n_points
 
     def _result(self, found: tuple[int, int, int, int, int]) -> SearchResult:
         score, k, dx, dy, nodes = (int(v) for v in found)

@@ -29,7 +29,10 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numba
 import numpy as np
@@ -60,6 +63,29 @@ MIN_POINTS = 20  # a scan with fewer search points is not searched (too little t
 _NO_EXT = np.zeros((0, 6))
 _NO_LUT = np.zeros(0)
 _NO_OFFSETS = np.zeros((1, 3))
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+SIDE_BY_SIDE_READS = 1_000_000  # searches run side by side when two or more read this many top-level cells each
+# (`CorrelativeSearch.top_reads`): a ms or more apiece. Smaller ones (Intel's: 10^4-10^5) cost less than handing them
+# to another thread (Intel's loop search 2.2 -> 2.5 s side by side); the hospital's wide ones 10^6-10^7 (its screen 23.6 -> 11.8 s)
+_POOLS: dict[int, ThreadPoolExecutor] = {}  # `side_by_side`'s threads by their number, started at first use
+
+
+def side_by_side(work: Callable[[T], R], jobs: list[T], sizes: list[int] | None = None) -> list[R]:
+    """`[work(job) for job in jobs]`, the jobs spread over as many threads as numba has
+    (`numba.get_num_threads()`; 1 in a sweep's parallel jobs) when at least two of them are
+    large (`sizes`, top-level reads: `SIDE_BY_SIDE_READS`; None: all large), else one after the
+    other here. For work that is mostly numba kernels releasing the GIL (`nogil`) and whose
+    result does not depend on the thread it ran on or on the other jobs."""
+    threads = numba.get_num_threads()
+    large = len(jobs) if sizes is None else sum(size >= SIDE_BY_SIDE_READS for size in sizes)
+    if threads < 2 or large < 2:
+        return [work(job) for job in jobs]
+    if threads not in _POOLS:
+        _POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix="slamlab-search")
+    return list(_POOLS[threads].map(work, jobs))
 
 
 @dataclass(slots=True)
@@ -199,14 +225,21 @@ class LoopSearch:
             pts = pts[np.linspace(0, len(pts) - 1, s.screen_points).astype(np.int64)]
         if len(pts) >= MIN_POINTS:
             yaw_step = yaw_step_for(pts, s.screen_resolution_m)
+            jobs = []  # (target, its search): made here, on this thread (`screen_grid` keeps the grids it makes)
             for i, (sm, guess, half_xy, half_yaw) in enumerate(targets):
                 win = _window_in(sm, guess, half_xy, half_yaw)
-                if win is None:
-                    continue
-                best = CorrelativeSearch(submaps.screen_grid(sm, s.screen_resolution_m, SCREEN_LEVELS), pts, win, yaw_step).best(s.min_score)
-                self.screened += 1
-                if best.found:
-                    out[i] = best.score
+                if win is not None:
+                    jobs.append((i, CorrelativeSearch(submaps.screen_grid(sm, s.screen_resolution_m, SCREEN_LEVELS), pts, win, yaw_step)))
+
+            def score(job: tuple[int, CorrelativeSearch]) -> float:
+                best = job[1].best(s.min_score)
+                return best.score if best.found else -1.0
+
+            # each target's search is its own (the same score on any thread): most are too small to share
+            # out within (`branch_bound.SHARED_TOP_NODES`), so they run side by side, one a core
+            for (i, _), value in zip(jobs, side_by_side(score, jobs, [cs.top_reads for _, cs in jobs])):
+                out[i] = value
+            self.screened += len(jobs)
         self.screen_seconds += time.perf_counter() - t0
         return out
 
@@ -223,14 +256,18 @@ class LoopSearch:
         if len(pts) < MIN_POINTS:
             return out
         yaw_step = yaw_step_for(pts, s.resolution_m)
+        # each submap's branch and bound is its own (the same best on any thread): run side by side
+        # (`side_by_side`), then what follows from each, in order. The submaps' grids and arrays
+        # are fetched here first, on this thread (`Submaps` keeps and unpacks them)
+        jobs = []
         for sm, guess, (half_xy, half_yaw), tied in reach:
             grid = submaps.search_grid(sm, s.resolution_m, s.levels)
-            field_u8, state_u8 = submaps.arrays(sm)
+            arrays = submaps.arrays(sm)
             win = _window_in(sm, guess, half_xy, half_yaw)
-            if win is None:
-                continue
-            cs = CorrelativeSearch(grid, pts, win, yaw_step)
-            best = cs.best(s.min_score)
+            if win is not None:
+                jobs.append((sm, guess, half_xy, tied, arrays, CorrelativeSearch(grid, pts, win, yaw_step)))
+        bests = side_by_side(lambda job: job[-1].best(s.min_score), jobs, [job[-1].top_reads for job in jobs])
+        for (sm, guess, half_xy, tied, (field_u8, state_u8), cs), best in zip(jobs, bests):
             self.searches += 1
             self.nodes_scored += best.nodes
             if not best.found:
