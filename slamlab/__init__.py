@@ -57,3 +57,14 @@ def _load_tbb() -> None:
 
 
 _load_tbb()
+
+
+def _one_heap() -> None:
+    """All threads on one malloc heap (`heap.one_heap_for_all_threads`: why), set before any
+    thread of numba's or the loop search's starts."""
+    from slamlab.heap import one_heap_for_all_threads
+
+    one_heap_for_all_threads()
+
+
+_one_heap()

@@ -36,6 +36,25 @@ def _glibc(name: str):
         return None
 
 
+M_ARENA_MAX = -8  # glibc's mallopt parameter: how many heaps (arenas) threads may spread their allocations over
+
+
+def one_heap_for_all_threads() -> bool:
+    """Make every thread allocate from the one (main) heap, where glibc gives each new thread
+    that allocates a heap of its own (up to 8 per core), which keeps what was freed in it
+    resident for that thread. Must run before a second thread first allocates (`slamlab`'s
+    import does). True when the C library took it (glibc).
+    Why: the loop search runs its wide searches on two Python threads (`graph.loops.side_by_side`)
+    and numba's threads allocate too (a kernel's arrays); the hospital log's peak with those
+    threads on heaps of their own 528-547 -> 556-578 MB over four runs, on one heap 530 MB, at the
+    same speed. Results never depend on it."""
+    mallopt = _glibc("mallopt")
+    if mallopt is None:
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return mallopt(M_ARENA_MAX, 1) == 1
+
+
 def release_freed_memory() -> None:
     """Return the heap memory freed so far to the system, where the C library allows it.
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -61,3 +63,40 @@ def test_the_jobs_of_a_sweep_report_peaks_that_do_not_grow_with_their_place(tmp_
     peaks = [m["peak_memory_mb"] for m in metrics]
     assert all(m["peak_memory_scope"] == "run" for m in metrics)
     assert max(peaks) / min(peaks) < 1.08, peaks
+
+
+# ---- one malloc heap for every thread (`heap.one_heap_for_all_threads`) ----------------------------
+_HEAPS_AFTER_A_THREAD = """
+import ctypes, sys, tempfile, threading
+if sys.argv[1] == "slamlab":
+    import slamlab  # noqa: F401
+import numpy as np
+
+def work():
+    keep = [np.ones(1000) for _ in range(100)]  # a thread that allocates
+    del keep
+
+t = threading.Thread(target=work)
+t.start()
+t.join()
+libc = ctypes.CDLL(None)
+libc.fopen.restype, libc.fopen.argtypes = ctypes.c_void_p, [ctypes.c_char_p, ctypes.c_char_p]
+libc.malloc_info.argtypes, libc.fclose.argtypes = [ctypes.c_int, ctypes.c_void_p], [ctypes.c_void_p]
+with tempfile.NamedTemporaryFile(suffix=".xml") as f:
+    fp = libc.fopen(f.name.encode(), b"w")
+    libc.malloc_info(0, fp)
+    libc.fclose(fp)
+    print(open(f.name).read().count("<heap nr="))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's heaps (the CI machine is Linux)")
+def test_after_importing_slamlab_a_thread_allocates_from_the_one_main_heap():
+    """Importing slamlab leaves glibc one heap (arena) for all threads: a thread that
+    allocates gets none of its own (a plain Python process: two heaps after it)."""
+    def heaps(what: str) -> int:
+        out = subprocess.run([sys.executable, "-c", _HEAPS_AFTER_A_THREAD, what], capture_output=True, text=True, check=True)
+        return int(out.stdout.strip())
+
+    assert heaps("plain") == 2
+    assert heaps("slamlab") == 1
