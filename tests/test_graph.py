@@ -850,6 +850,44 @@ def test_a_match_on_the_edge_of_its_window_is_set_aside(shift_m, half_m, status)
     assert found.status == status
 
 
+def test_a_loop_search_over_several_submaps_side_by_side_finds_what_one_thread_finds(monkeypatch):
+    """`LoopSearch.search` evaluates each submap in reach on its own (`_candidate`), side by side
+    when the searches are large (`side_by_side`): the same candidates, in the same order, with
+    the same bound count as one after the other on one thread. Here the junction's scan over
+    both submaps at every yaw, the estimate in the room: both searched, the junction's found."""
+    import numba
+
+    from slamlab.slam.graph import loops
+
+    submaps, junction = _two_place_submaps()
+    truth = np.array([57.0, 0.2, 0.0])
+    poses = np.array([(-2.0, -1.0, 0.3), (0.0, -2.0, 0.5), (55.0, 0.0, 0.0), (59.0, 0.0, 1.2)])
+    query = _wall_points(junction, truth)
+    settings = SearchSettings(0.1, 6, 0.3, 0.5, 0.9, 1.0, 0.35, 2, 30.0)
+
+    def run() -> tuple[list, int, int]:
+        search = LoopSearch(settings, 0.05, 4, 0.03, 0.01)
+        # the room searched around its middle, the junction around an estimate 2 m off (submap frames: the world here)
+        guesses = {0: np.array([0.5, 0.5, 0.0]), 1: truth + np.array([2.0, 0.5, 0.3])}
+        reach = [(sm, guesses[sm.index], (10.0, math.pi), 100.0) for sm in submaps.finished]
+        found = search.search(9, truth, query, query, np.zeros(2), submaps, reach, poses)
+        return found, search.searches, search.nodes_scored
+
+    monkeypatch.setattr(loops, "SIDE_BY_SIDE_READS", 0)  # every search large: side by side on all threads
+    both = run()
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        alone = run()
+    finally:
+        numba.set_num_threads(threads)
+    assert both[1:] == alone[1:] and both[1] == 2
+    assert [c.submap for c in both[0]] == [c.submap for c in alone[0]] and 1 in [c.submap for c in both[0]]
+    for a, b in zip(both[0], alone[0]):
+        assert (a.status, a.score, a.refined, a.second, a.anchor) == (b.status, b.score, b.refined, b.second, b.anchor)
+        assert np.array_equal(a.relative, b.relative) and np.array_equal(a.covariance, b.covariance)
+
+
 def test_the_window_edge_is_the_drift_windows_not_the_submaps_area():
     """`at_window_edge`: within one search cell of the window +-5 m around (10, 10) in x or y,
     on a side the submap's area (x and y 0..40 m, or x 0..12 m) did not cut."""

@@ -256,9 +256,9 @@ class LoopSearch:
         if len(pts) < MIN_POINTS:
             return out
         yaw_step = yaw_step_for(pts, s.resolution_m)
-        # each submap's branch and bound is its own (the same best on any thread): run side by side
-        # (`side_by_side`), then what follows from each, in order. The submaps' grids and arrays
-        # are fetched here first, on this thread (`Submaps` keeps and unpacks them)
+        # each submap's search and what follows from it is its own (the same candidate on any thread):
+        # run side by side (`side_by_side`). The submaps' grids and arrays are fetched here first, on
+        # this thread (`Submaps` keeps and unpacks them)
         jobs = []
         for sm, guess, (half_xy, half_yaw), tied in reach:
             grid = submaps.search_grid(sm, s.resolution_m, s.levels)
@@ -266,61 +266,77 @@ class LoopSearch:
             win = _window_in(sm, guess, half_xy, half_yaw)
             if win is not None:
                 jobs.append((sm, guess, half_xy, tied, arrays, CorrelativeSearch(grid, pts, win, yaw_step)))
-        bests = side_by_side(lambda job: job[-1].best(s.min_score), jobs, [job[-1].top_reads for job in jobs])
-        for (sm, guess, half_xy, tied, (field_u8, state_u8), cs), best in zip(jobs, bests):
-            self.searches += 1
-            self.nodes_scored += best.nodes
-            if not best.found:
-                continue
-            field = (field_u8, FIELD_LUT)  # read as code / 255 (`field_cells`)
-            refined_pose, refined = self._refine(sm, field, best.pose, fine_pts)
-            second = 0.0
-            status = PENDING
-            along = None  # the direction (submap frame) along which the match is ambiguous, if it is along a line
-            if refined < s.min_refined_score:
-                status = WEAK
-            else:
-                # another pose scoring near the best in the search, refined like it, must stay
-                # clearly below it: both refined, so the grid's discretisation cannot decide
-                other = cs.best_outside(best, s.ambiguity_m, s.ambiguity_rad, AMBIGUITY_SEARCH * s.ambiguity_ratio * best.score)
-                self.nodes_scored += other.nodes
-                if other.found:
-                    other_pose, second = self._refine(sm, field, other.pose, fine_pts)
-                    if second >= s.ambiguity_ratio * refined:
-                        along = _along_line(refined_pose, other_pose, s.ambiguity_rad / 2)
-                        if along is None:
-                            status = AMBIGUOUS
-                if status == PENDING and along is None and at_window_edge(best.pose, sm, guess, half_xy, s.resolution_m):
-                    status = EDGE
-            through, free_end, _ = contradictions(state_u8, field_u8, float(sm.origin[0]), float(sm.origin[1]), 1.0 / sm.resolution_m,
-                                                  float(refined_pose[0]), float(refined_pose[1]), float(refined_pose[2]),
-                                                  np.ascontiguousarray(own, dtype=np.float64), float(origin[0]), float(origin[1]),
-                                                  int(round(WALL_MARGIN_M / sm.resolution_m)))
 
-            cov = match_covariance(field, sm.origin, sm.resolution_m, refined_pose, fine_pts, self.sigma_m, self.sigma_rad)
-            if along is not None:
-                # along the line of equally good poses (a corridor's length) the match says
-                # nothing: keep the estimate's place on it, and no weight there
-                refined_pose = refined_pose.copy()
-                refined_pose[:2] += ((guess[0] - refined_pose[0]) * along[0] + (guess[1] - refined_pose[1]) * along[1]) * along
-            # the closure joins the query node to the submap's node nearest the match: the
-            # submap's content there was drawn from that node's and its neighbours' scans, so
-            # local SLAM's drift between the submap's first node and that one stays out of it
-            near = int(np.argmin(np.hypot(*(sm.node_local[:, :2] - refined_pose[:2]).T)))
-            anchor, anchor_local = int(sm.node_ids[near]), sm.node_local[near]
-            relative = se2_between(anchor_local, refined_pose)
-            if along is not None:
-                c, sn = np.cos(refined_pose[2]), np.sin(refined_pose[2])
-                u = np.array([c * along[0] + sn * along[1], -sn * along[0] + c * along[1]])  # in the node's frame
-                cov[:2, :2] += MAX_SIGMA_M**2 * np.outer(u, u)
-            out.append(LoopCandidate(
-                node=node, submap=sm.index, anchor=anchor, relative=relative, score=best.score, refined=refined,
-                second=second, window_m=half_xy, node_pose=np.asarray(pose, dtype=np.float64).copy(),
-                match_pose=se2_compose(poses[anchor], relative), status=status,
-                covariance=cov, along_line=along is not None, see_through=through / max(len(own), 1), free_ends=free_end / max(len(own), 1), tied_m=tied,
-            ))
+        def one(job: tuple) -> tuple[LoopCandidate | None, int]:
+            return self._candidate(node, pose, fine_pts, own, origin, poses, *job)
+
+        for candidate, nodes in side_by_side(one, jobs, [job[-1].top_reads for job in jobs]):
+            self.searches += 1
+            self.nodes_scored += nodes
+            if candidate is not None:
+                out.append(candidate)
         self.seconds += time.perf_counter() - t0
         return out
+
+    def _candidate(self, node: int, pose: FloatArray, fine_pts: FloatArray, own: FloatArray, origin: FloatArray, poses: FloatArray,
+                   sm: FinishedSubmap, guess: FloatArray, half_xy: float, tied: float, arrays: tuple[np.ndarray, np.ndarray],
+                   cs: CorrelativeSearch) -> tuple[LoopCandidate | None, int]:
+        """Node `node`'s candidate in submap `sm` (`search`: its arguments; `arrays` the submap's
+        field and state codes, `cs` its search over the window), None when its best scores under
+        `min_score`; and the bounds the searches computed. Reads only its arguments and settings."""
+        s = self.s
+        field_u8, state_u8 = arrays
+        best = cs.best(s.min_score)
+        nodes = best.nodes
+        if not best.found:
+            return None, nodes
+        field = (field_u8, FIELD_LUT)  # read as code / 255 (`field_cells`)
+        refined_pose, refined = self._refine(sm, field, best.pose, fine_pts)
+        second = 0.0
+        status = PENDING
+        along = None  # the direction (submap frame) along which the match is ambiguous, if it is along a line
+        if refined < s.min_refined_score:
+            status = WEAK
+        else:
+            # another pose scoring near the best in the search, refined like it, must stay
+            # clearly below it: both refined, so the grid's discretisation cannot decide
+            other = cs.best_outside(best, s.ambiguity_m, s.ambiguity_rad, AMBIGUITY_SEARCH * s.ambiguity_ratio * best.score)
+            nodes += other.nodes
+            if other.found:
+                other_pose, second = self._refine(sm, field, other.pose, fine_pts)
+                if second >= s.ambiguity_ratio * refined:
+                    along = _along_line(refined_pose, other_pose, s.ambiguity_rad / 2)
+                    if along is None:
+                        status = AMBIGUOUS
+            if status == PENDING and along is None and at_window_edge(best.pose, sm, guess, half_xy, s.resolution_m):
+                status = EDGE
+        through, free_end, _ = contradictions(state_u8, field_u8, float(sm.origin[0]), float(sm.origin[1]), 1.0 / sm.resolution_m,
+                                              float(refined_pose[0]), float(refined_pose[1]), float(refined_pose[2]),
+                                              np.ascontiguousarray(own, dtype=np.float64), float(origin[0]), float(origin[1]),
+                                              int(round(WALL_MARGIN_M / sm.resolution_m)))
+
+        cov = match_covariance(field, sm.origin, sm.resolution_m, refined_pose, fine_pts, self.sigma_m, self.sigma_rad)
+        if along is not None:
+            # along the line of equally good poses (a corridor's length) the match says
+            # nothing: keep the estimate's place on it, and no weight there
+            refined_pose = refined_pose.copy()
+            refined_pose[:2] += ((guess[0] - refined_pose[0]) * along[0] + (guess[1] - refined_pose[1]) * along[1]) * along
+        # the closure joins the query node to the submap's node nearest the match: the
+        # submap's content there was drawn from that node's and its neighbours' scans, so
+        # local SLAM's drift between the submap's first node and that one stays out of it
+        near = int(np.argmin(np.hypot(*(sm.node_local[:, :2] - refined_pose[:2]).T)))
+        anchor, anchor_local = int(sm.node_ids[near]), sm.node_local[near]
+        relative = se2_between(anchor_local, refined_pose)
+        if along is not None:
+            c, sn = np.cos(refined_pose[2]), np.sin(refined_pose[2])
+            u = np.array([c * along[0] + sn * along[1], -sn * along[0] + c * along[1]])  # in the node's frame
+            cov[:2, :2] += MAX_SIGMA_M**2 * np.outer(u, u)
+        return LoopCandidate(
+            node=node, submap=sm.index, anchor=anchor, relative=relative, score=best.score, refined=refined,
+            second=second, window_m=half_xy, node_pose=np.asarray(pose, dtype=np.float64).copy(),
+            match_pose=se2_compose(poses[anchor], relative), status=status,
+            covariance=cov, along_line=along is not None, see_through=through / max(len(own), 1), free_ends=free_end / max(len(own), 1), tied_m=tied,
+        ), nodes
 
     def _refine(self, sm: FinishedSubmap, field: FieldCells, pose: FloatArray, pts: FloatArray) -> tuple[FloatArray, float]:
         """Hill climbing on the submap's field from `pose` (submap frame), no motion prior:
