@@ -11,6 +11,7 @@ import contextlib
 import dataclasses
 import importlib.util
 import math
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -175,6 +176,35 @@ def test_side_by_side_returns_each_jobs_result_in_order_on_any_thread_count():
         assert seen == {threading.get_ident()}  # one thread: here, in order
     finally:
         numba.set_num_threads(threads)
+
+
+def test_side_by_side_in_a_forked_child_starts_its_own_threads():
+    """A process that used `side_by_side`'s threads and then forks (a sweep's job runs in a
+    forked child): the child has none of those threads, so it starts its own rather than hand
+    jobs to a pool nobody serves (it would wait forever)."""
+    import os
+    import signal
+
+    from slamlab.slam.graph import loops
+
+    assert loops.side_by_side(abs, [-1, -2, -3]) == [1, 2, 3]  # the parent's pool (when numba has two threads)
+    pid = os.fork()
+    if pid == 0:  # the child: exit 0 when it gets the answer; killed below if it hangs
+        code = 1
+        try:
+            code = 0 if loops.side_by_side(abs, [-4, -5]) == [4, 5] else 1
+        finally:
+            os._exit(code)
+    for _ in range(200):  # up to 10 s
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
+        pytest.fail("the forked child's side_by_side hung")
+    assert os.waitstatus_to_exitcode(status) == 0
 
 
 @pytest.mark.parametrize("f", [1, 2, 3])

@@ -28,6 +28,7 @@ turn), so after a long loop the search covers whole submaps at every yaw.
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -71,6 +72,8 @@ SIDE_BY_SIDE_READS = 1_000_000  # searches run side by side when two or more rea
 # (`CorrelativeSearch.top_reads`): a ms or more apiece. Smaller ones (Intel's: 10^4-10^5) cost less than handing them
 # to another thread (Intel's loop search 2.2 -> 2.5 s side by side); the hospital's wide ones 10^6-10^7 (its screen 23.6 -> 11.8 s)
 _POOLS: dict[int, ThreadPoolExecutor] = {}  # `side_by_side`'s threads by their number, started at first use
+# a forked child (a sweep's job: `cli.app._run_in_child`) has none of its parent's threads: its pools start afresh
+os.register_at_fork(after_in_child=_POOLS.clear)
 
 
 def side_by_side(work: Callable[[T], R], jobs: list[T], sizes: list[int] | None = None) -> list[R]:
