@@ -7,6 +7,9 @@ starts. It does nothing where the C library is not glibc, and never changes a re
 `release_pages`: the pages of an array being copied into a larger one given back as they are
 copied (a growing map holds one copy at a time, not two).
 
+`one_heap_for_all_threads`: every thread allocates from the main heap, so what a thread frees
+is not kept resident in a heap of its own.
+
 Not done: a fixed 1 MB mmap threshold (`mallopt`), which gives every large array back the
 moment it is freed (Intel's whole run with report 309 MB against 326 MB here), because every
 such array is then mapped and faulted in afresh: the default sim run took 61,569 -> 920,161

@@ -65,9 +65,10 @@ def max_pool_levels(grid, levels):
 
 @numba.njit(cache=True, nogil=True)
 def place_points(pts, x0, y0, yaws, ox, oy, inv_res):
-    """(Y, M) rows and cols (int32: half the memory of a wide search's 10^3 yaws x 10^3 points) of the points (M, 2, body frame, m) with the body at (x0,
-    y0) (m, map frame) and each yaw (Y,) rad, on a grid of origin (ox, oy) m and 1 / inv_res m
-    cells: the candidates' points at zero offset."""
+    """(Y, M) rows and cols of the points (M, 2, body frame, m) with the body at (x0, y0) (m,
+    map frame) and each yaw (Y,) rad, on a grid of origin (ox, oy) m and 1 / inv_res m cells:
+    the candidates' points at zero offset. int32: half the memory of int64 for a wide search's
+    10^3 yaws x 10^3 points."""
     Y = yaws.shape[0]
     M = pts.shape[0]
     rows = np.empty((Y, M), dtype=np.int32)
@@ -118,6 +119,13 @@ def _inside_exclusion(k, dx0, dy0, size, ex):
     return False
 
 
+@numba.njit(cache=True, inline="always")
+def node_grid(top, wx, wy):
+    """(nx, ny): the top-level nodes of one yaw in x and y, `top` cells a side, over the
+    offsets [-wx, wx] x [-wy, wy] (cells)."""
+    return (2 * wx) // top + 1, (2 * wy) // top + 1
+
+
 PLANE_READS_PER_CELL = 4  # `top_bounds` lays the top level out in phase planes when a search reads it at least
 # this many times per cell (a wide window); below, re-laying it would cost more than it saves
 
@@ -130,8 +138,8 @@ def top_bounds(pool, rows, cols, wx, wy):
     Such a window is summed from the top level's phase planes (`_phase_planes`,
     `_top_bounds_planes`), a small one node by node (`_top_bounds_direct`): the same integers."""
     top = 1 << (pool.shape[0] - 1)
-    nodes = rows.shape[0] * ((2 * wx) // top + 1) * ((2 * wy) // top + 1)
-    if nodes * rows.shape[1] >= PLANE_READS_PER_CELL * pool.shape[1] * pool.shape[2]:
+    nx, ny = node_grid(top, wx, wy)
+    if rows.shape[0] * nx * ny * rows.shape[1] >= PLANE_READS_PER_CELL * pool.shape[1] * pool.shape[2]:
         return _top_bounds_planes(_phase_planes(pool[-1], top), rows, cols, wx, wy, top)
     return _top_bounds_direct(pool, rows, cols, wx, wy)
 
@@ -142,8 +150,7 @@ def _top_bounds_direct(pool, rows, cols, wx, wy):
     L = pool.shape[0]
     Y = rows.shape[0]
     top = 1 << (L - 1)
-    nx = (2 * wx) // top + 1
-    ny = (2 * wy) // top + 1
+    nx, ny = node_grid(top, wx, wy)
     out = np.empty(Y * nx * ny, dtype=np.int64)
     for k in numba.prange(Y):  # each entry its own: the same values whatever the thread count
         for a in range(nx):
@@ -182,8 +189,7 @@ def _top_bounds_planes(planes, rows, cols, wx, wy, top):
     PW = planes.shape[2]
     PH = planes.shape[3]
     pad = top - 1
-    nx = (2 * wx) // top + 1
-    ny = (2 * wy) // top + 1
+    nx, ny = node_grid(top, wx, wy)
     out = np.empty(Y * nx * ny, dtype=np.int64)
     for k in numba.prange(Y):
         acc = np.zeros(nx * ny, dtype=np.int32)  # the yaw's sums (M x 255 fits): twice the lanes of int64 adds
@@ -288,8 +294,7 @@ def _bnb_share(pool, rows, cols, wx, wy, min_score, ex, t_score, ranked):
     L = pool.shape[0]
     Y = rows.shape[0]
     top = 1 << (L - 1)
-    nx = (2 * wx) // top + 1
-    ny = (2 * wy) // top + 1
+    nx, ny = node_grid(top, wx, wy)
     nodes = 0
     # the stack: the top level (pushed worst first, so the best pops first), then at most 4
     # children per level on the way down
@@ -480,8 +485,8 @@ class CorrelativeSearch:
     @property
     def top_reads(self) -> int:
         """Cells the top level's bounds read (yaws x top nodes x points): the search's size."""
-        top = 1 << (self.grid.pool.shape[0] - 1)
-        return len(self.yaws) * ((2 * self.wx) // top + 1) * ((2 * self.wy) // top + 1) * self.n_points
+        nx, ny = node_grid(1 << (self.grid.pool.shape[0] - 1), self.wx, self.wy)
+        return len(self.yaws) * nx * ny * self.n_points
 
     def _result(self, found: tuple[int, int, int, int, int]) -> SearchResult:
         score, k, dx, dy, nodes = (int(v) for v in found)
