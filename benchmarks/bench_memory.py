@@ -15,7 +15,9 @@ Per row:
    its own (anonymous) memory, so the table also gives both parts at the peak phase.
    `import floor` is a fresh process that only imports every module the run had imported
    by its end (no data, no kernel loaded): the part of the peak that is code, with the
-   resident pages of libllvmlite.so (numba's LLVM, loaded by `import numba`) apart.
+   resident pages of libllvmlite.so (numba's LLVM, loaded by `import numba`) apart, and
+   what stays resident once LLVM's pages are given back, as the CLI does between kernel
+   loads (`slamlab.code_pages`).
 2. Per phase (import, config, setup, read, filter, metrics, files, texture, report), from a
    second, probed run: the peak resident size reached during that phase (Linux's high-water
    mark VmHWM, reset when each phase starts through /proc/self/clear_refs: exact, however
@@ -132,22 +134,30 @@ for name in json.load(open(out)):
         importlib.import_module(name)
     except BaseException:
         pass
-status = open("/proc/self/status").read()
-mb = {k: int(re.search(rf"^{k}:\\s+(\\d+)", status, re.M).group(1)) / 1024 for k in ("VmHWM", "RssAnon", "RssFile")}
-llvm, current = 0, ""
-for line in open("/proc/self/smaps"):
-    if re.match(r"^[0-9a-f]+-[0-9a-f]+ ", line):
-        current = line
-    elif line.startswith("Rss:") and "libllvmlite" in current:
-        llvm += int(line.split()[1]) / 1024
-json.dump({**mb, "llvmlite": llvm}, open(out, "w"))
+def status():
+    text = open("/proc/self/status").read()
+    return {k: int(re.search(rf"^{k}:\\s+(\\d+)", text, re.M).group(1)) / 1024 for k in ("VmHWM", "VmRSS", "RssAnon", "RssFile")}
+def llvm():
+    mb, current = 0, ""
+    for line in open("/proc/self/smaps"):
+        if re.match(r"^[0-9a-f]+-[0-9a-f]+ ", line):
+            current = line
+        elif line.startswith("Rss:") and "libllvmlite" in current:
+            mb += int(line.split()[1]) / 1024
+    return mb
+mb = {**status(), "llvmlite": llvm()}
+from slamlab.code_pages import give_back_llvm_pages_after_loads
+give_back_llvm_pages_after_loads()  # as the CLI does before a run's first kernel loads
+mb["after"] = status()
+json.dump(mb, open(out, "w"))
 """
 
 
 def import_floor(modules: list[str], path: Path, env: dict[str, str]) -> dict:
     """The floor of a run: a fresh process that imports every module the run had imported by
     its end (its code, NumPy's, numba's and LLVM's, matplotlib's, ...) and does nothing else:
-    its peak (MB), resident file-backed and anonymous parts, and libllvmlite's share."""
+    its peak (MB), resident file-backed and anonymous parts, and libllvmlite's share; under
+    "after", the same once LLVM's pages are given back (`code_pages`)."""
     path.write_text(json.dumps(modules))
     _run([sys.executable, "-c", FLOOR_SCRIPT, str(path)], path.parent, env)
     return json.loads(path.read_text())
@@ -402,7 +412,7 @@ def main() -> None:
 
 def print_tables(results: dict[str, dict]) -> None:
     print("| run | peak MB (whole process) | budget MB | met | peak phase (MB) | its file / anon MB at end "
-          "| import floor MB (file / anon; libllvmlite) | maps MB at peak |")
+          "| import floor MB (file / anon; libllvmlite) -> once LLVM is given back | maps MB at peak |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     for name, r in results.items():
         budget = MAKE_TEST_BUDGET_MB if name == "make_test" else ROWS[name][1]
@@ -414,7 +424,11 @@ def print_tables(results: dict[str, dict]) -> None:
         else:
             where = ("-", "-")
         fl = r.get("floor")
-        floor = f"{fl['VmHWM']:.0f} ({fl['RssFile']:.0f} / {fl['RssAnon']:.0f}; {fl['llvmlite']:.0f})" if fl else "-"
+        floor = "-"
+        if fl:
+            after = fl["after"]
+            floor = (f"{fl['VmHWM']:.0f} ({fl['RssFile']:.0f} / {fl['RssAnon']:.0f}; {fl['llvmlite']:.0f}) -> "
+                     f"{after['VmRSS']:.0f} ({after['RssFile']:.0f} / {after['RssAnon']:.0f})")
         met = "-" if budget is None else ("yes" if r["peak_mb"] <= budget else "no")
         maps = f"{r['maps_peak_mb']:.0f}" if "maps_peak_mb" in r else "-"
         print(f"| {name} | {r['peak_mb']:.0f} | {'-' if budget is None else f'{budget:.0f}'} | {met} | {where[0]} | {where[1]} | {floor} | {maps} |")

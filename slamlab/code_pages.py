@@ -1,0 +1,105 @@
+"""LLVM's code pages given back after numba has loaded a kernel (issue 44).
+
+numba loads every kernel (compiled, or read from its cache) through LLVM: the whole of
+libllvmlite.so (180 MB of machine code and tables) is mapped into the process, and loading
+even one cached kernel runs LLVM's code generator and linker, spread over that library: the
+kernel faults in ~45 MB of its pages (the first load, which also builds numba's runtime, ~90 MB;
+`import numba` itself ~100 MB through LLVM's start-up code). Those pages stay resident in the
+process long after the last kernel has loaded, while the run only executes the kernels' own
+code, so they made up a third of a one-scan run's peak resident size and ~90 MB of Intel's
+and the hospital's, through the whole filter.
+
+`give_back_llvm_pages_after_loads` installs a listener on numba's compiler lock: each time a
+thread lets go of it (a kernel loaded or compiled), the process's resident pages of
+libllvmlite.so are given back (`madvise(MADV_DONTNEED)`). They stay in the kernel's page cache,
+shared with every other process, and come back as minor page faults at the next load. Only
+pages that are the file's own bytes are given back (a read-only mapping that holds no page of
+its own, checked once): the library's relocated tables and data, written when it was loaded,
+are never touched. So no result can change: code read again from its file is the same code.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import mmap
+import sys
+from pathlib import Path
+
+LIBRARY = "libllvmlite.so"
+
+
+def file_only_ranges(name: str, smaps: Path = Path("/proc/self/smaps")) -> list[tuple[int, int]]:
+    """[start, end) address ranges of this process's mappings of the shared library whose file
+    name contains `name` that are read-only and hold only the file's own pages (no anonymous,
+    copied-on-write page): the ranges whose resident pages can be dropped and read again
+    from the file unchanged. Empty where /proc is not there."""
+    out: list[tuple[int, int]] = []
+    candidate: tuple[int, int] | None = None
+    try:
+        lines = smaps.read_text().splitlines()
+    except OSError:
+        return out
+    for line in lines:
+        head = line.split(None, 5)
+        if not head:
+            continue
+        if "-" in head[0] and not head[0].endswith(":"):  # a mapping's first line: range perms offset dev inode path
+            candidate = None
+            if len(head) == 6 and name in Path(head[5]).name and "w" not in head[1]:
+                lo, hi = (int(x, 16) for x in head[0].split("-"))
+                candidate = (lo, hi)
+        elif head[0] == "Anonymous:" and candidate is not None:
+            if int(head[1]) == 0:
+                out.append(candidate)
+            candidate = None
+    return out
+
+
+class _Dropper:
+    """Gives back the resident pages of fixed address ranges (`madvise(MADV_DONTNEED)`)."""
+
+    def __init__(self, ranges: list[tuple[int, int]]) -> None:
+        self.ranges = ranges
+        self.calls = 0
+        libc = ctypes.CDLL(None)
+        self._madvise = libc.madvise
+        self._madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+        self._madvise.restype = ctypes.c_int
+
+    def __call__(self) -> None:
+        self.calls += 1
+        for lo, hi in self.ranges:
+            self._madvise(lo, hi - lo, mmap.MADV_DONTNEED)
+
+
+_INSTALLED: list[_Dropper] = []
+
+
+def give_back_llvm_pages_after_loads() -> bool:
+    """From now on, give back LLVM's resident code pages whenever numba lets go of its compiler
+    lock (after a kernel loaded or compiled, and once now). Once per process; numba is imported
+    here. True when installed (Linux with /proc and libllvmlite.so loaded), else False."""
+    if _INSTALLED:
+        return True
+    if not sys.platform.startswith("linux") or not hasattr(mmap, "MADV_DONTNEED"):
+        return False
+    from numba.core import event
+    from numba.core.compiler_lock import global_compiler_lock
+
+    ranges = file_only_ranges(LIBRARY)
+    if not ranges:
+        return False
+    drop = _Dropper(ranges)
+
+    class _AfterLoad(event.Listener):
+        def on_start(self, ev: event.Event) -> None:
+            pass
+
+        def on_end(self, ev: event.Event) -> None:
+            if not global_compiler_lock.is_locked():  # the outermost release: the load is done
+                drop()
+
+    event.register("numba:compiler_lock", _AfterLoad())
+    _INSTALLED.append(drop)
+    drop()
+    return True
