@@ -1073,3 +1073,31 @@ def test_a_learnt_yaw_drift_is_the_simulated_odometrys_and_lands_in_the_metrics(
     learnt = _run(loop_log, "filter.yaw_drift_gain_per_m=0.05", "steps.max_scans=3000").extras["graph"]
     assert -1.4 < math.degrees(learnt["yaw_drift_rad_per_m"]) < -0.8
     assert "yaw_drift_rad_per_m" not in _run(loop_log, "steps.max_scans=300").extras["graph"]  # absent when off
+
+
+def test_a_map_of_nodes_made_one_scan_at_a_time_is_the_map_of_the_list_and_released_submaps_keep_their_counts():
+    """The online map's redraw and the final match pass their scans as a generator (each let go
+    once its points are placed): the same log-odds and field as from a list. After the last node
+    the submaps let their maps go (`Submaps.release`) and keep what the metrics read."""
+    from slamlab.slam.graph.local import map_of_nodes
+    from slamlab.slam.grid import MapSettings
+    from slamlab.slam.matcher import LikelihoodFieldMatcher
+    from slamlab.slam.scan import ScanPoints
+
+    submaps, junction = _two_place_submaps()
+    poses = np.array([(55.0, 0.0, 0.0), (59.0, 0.0, 1.2), (57.0, 0.5, 0.4)])
+    scans = [ScanPoints(_wall_points(junction, p), np.array([0.1, 0.0])) for p in poses]
+    matcher, ms = LikelihoodFieldMatcher(), MapSettings(resolution_m=0.05)
+    from_list = map_of_nodes(scans, poses, matcher, ms, walls_at_hits=True)
+    made = []
+    from_generator = map_of_nodes((made.append(i) or scans[i] for i in range(3)), poses, matcher, ms, walls_at_hits=True)
+    assert made == [0, 1, 2] and np.count_nonzero(from_list.log_odds) > 100
+    for name in ("log_odds", "field", "hit_dx", "hit_dy", "hit_n"):
+        assert np.array_equal(getattr(from_list, name), getattr(from_generator, name)), name
+    assert np.array_equal(from_list.origin, from_generator.origin)
+
+    peak, anchors = submaps.peak_mb, list(submaps.anchors)
+    submaps.screen_grid(submaps.finished[0], 0.3, 3)
+    assert submaps.memory_mb() > 0
+    submaps.release()
+    assert submaps.memory_mb() == 0 and not submaps.finished and submaps.anchors == anchors and submaps.peak_mb == peak > 0

@@ -294,12 +294,20 @@ class OccupancyGrid:
         the same log-odds and field (tested), for a map drawn again from scratch."""
         if not len(points_xy):
             return
-        pts = np.concatenate(points_xy)
-        reach = np.concatenate([pts, sensors_xy])
-        self.ensure(*reach.min(axis=0), *reach.max(axis=0))
+        self.insert_joined(sensors_xy, np.concatenate(points_xy), np.concatenate([[0], np.cumsum([len(p) for p in points_xy])]).astype(np.int64))
+
+    def insert_joined(self, sensors_xy: FloatArray, pts: FloatArray, starts: np.ndarray) -> None:
+        """`insert_many` of scans whose world hit points are joined in one array `pts` (N, 2) m,
+        scan i's the rows starts[i]:starts[i + 1] ((K + 1,) int64, from 0): a caller that made
+        them one scan at a time lets its list go before the ray-casting's own arrays are made."""
+        if len(starts) <= 1:
+            return
+        sensors_xy = np.asarray(sensors_xy, dtype=np.float64)
+        lo = np.minimum(pts.min(axis=0), sensors_xy.min(axis=0)) if len(pts) else sensors_xy.min(axis=0)
+        hi = np.maximum(pts.max(axis=0), sensors_xy.max(axis=0)) if len(pts) else sensors_xy.max(axis=0)
+        self.ensure(*lo, *hi)
         rows, cols = self.cells(pts)
-        sensor_rows, sensor_cols = self.cells(np.asarray(sensors_xy, dtype=np.float64))
-        starts = np.concatenate([[0], np.cumsum([len(p) for p in points_xy])]).astype(np.int64)
+        sensor_rows, sensor_cols = self.cells(sensors_xy)
         # the grid's rows in bands, a few for each core (the result does not depend on them)
         band_rows = max(RAY_BAND_ROWS_MIN, -(-self.shape[0] // (4 * numba.get_num_threads())))
         raycast_many_bands(self.log_odds, sensor_rows, sensor_cols, rows, cols, starts, *self._updates(), band_rows)

@@ -47,7 +47,7 @@ def match_on_final_map(trajectory: FloatArray, node_scans: np.ndarray, points: C
     scan i's points, `project(a, b)` scans a..b-1 as a batch. The first node, the scans before
     it and scans without points keep their pose. Returns a new array."""
     node_scans = np.asarray(node_scans, dtype=np.int64)
-    grid = map_of_nodes([points(int(i)) for i in node_scans], trajectory[node_scans], matcher, settings, walls_at_hits)
+    grid = map_of_nodes((points(int(i)) for i in node_scans), trajectory[node_scans], matcher, settings, walls_at_hits)
     out = np.array(trajectory, dtype=np.float64, copy=True)
     for a in range(int(node_scans[0]) + 1, len(out), CHUNK_SCANS):
         b = min(a + CHUNK_SCANS, len(out))

@@ -42,6 +42,7 @@ import numpy as np
 from slamlab.errors import ConfigError
 from slamlab.frames import Sequence
 from slamlab.geometry import FloatArray, se2_between, se2_compose, se2_fit
+from slamlab.heap import release_freed_memory
 from slamlab.io.table import Table
 from slamlab.slam.graph import GraphFilter
 from slamlab.slam.graph.final_match import match_on_final_map
@@ -191,7 +192,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
                 on_map[: k + 1], laid = redraw
                 d = se2_between(tracker.online, on_map[k])
                 log.debug("node %d: the graph moved the robot %.2f m, %.1f deg from the online map: redrawn", k, float(np.hypot(d[0], d[1])), float(np.degrees(d[2])))
-                tracker.redraw([points(i) for i in step_scans[: k + 1]], on_map[: k + 1])
+                tracker.redraw((points(i) for i in step_scans[: k + 1]), on_map[: k + 1])
                 opt_s += time.perf_counter() - t1
         causal[k] = tracker.online if tracker.whole else graph.poses[k]
         rows["closures"].append(len(accepted))
@@ -212,6 +213,8 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
     trajectory = fill_between_steps(step_scans, smooth, odom, between)
     map_mb = tracker.memory_mb()
     tracker.drop_online_map()
+    submaps.release()
+    release_freed_memory()  # what the online map, the submaps and the steps freed, before the final maps are drawn
     if s.final_match and between is not None:  # every scan matched once more on the map of the optimised nodes (`final_match`)
         t1 = time.perf_counter()
         trajectory = match_on_final_map(trajectory, step_scans, points, project, matcher, ms, s.wall_at == "hits")

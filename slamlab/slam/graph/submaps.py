@@ -250,6 +250,17 @@ class Submaps:
         self.finished_view = np.vstack([self.finished_view, f.node_local[:, :2].mean(axis=0)])
         return f
 
+    def release(self) -> None:
+        """After the last node no scan is matched or searched against a submap again: their
+        maps and search grids go before the final map is drawn (the hospital log's: ~50 MB);
+        the anchors and the peak stay for the metrics."""
+        self.active.clear()
+        self.finished.clear()
+        self._arrays.clear()
+        self._grids.clear()
+        self._screen.clear()
+        self._packed_bytes = self._screen_bytes = 0
+
     def memory_mb(self) -> float:
         """MB held: the active submaps' grids, the finished ones packed, and those unpacked."""
         active = sum(s.grid.nbytes for s in self.active)
