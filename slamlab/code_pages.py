@@ -20,10 +20,11 @@ are never touched. So no result can change: code read again from its file is the
 
 from __future__ import annotations
 
-import ctypes
 import mmap
 import sys
 from pathlib import Path
+
+from slamlab.heap import give_back
 
 LIBRARY = "libllvmlite.so"
 
@@ -56,20 +57,16 @@ def file_only_ranges(name: str, smaps: Path = Path("/proc/self/smaps")) -> list[
 
 
 class _Dropper:
-    """Gives back the resident pages of fixed address ranges (`madvise(MADV_DONTNEED)`)."""
+    """Gives back the resident pages of fixed address ranges (`heap.give_back`)."""
 
     def __init__(self, ranges: list[tuple[int, int]]) -> None:
         self.ranges = ranges
         self.calls = 0
-        libc = ctypes.CDLL(None)
-        self._madvise = libc.madvise
-        self._madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
-        self._madvise.restype = ctypes.c_int
 
     def __call__(self) -> None:
         self.calls += 1
         for lo, hi in self.ranges:
-            self._madvise(lo, hi - lo, mmap.MADV_DONTNEED)
+            give_back(lo, hi)
 
 
 _INSTALLED: list[_Dropper] = []

@@ -10,6 +10,9 @@ copied (a growing map holds one copy at a time, not two).
 `one_heap_for_all_threads`: every thread allocates from the main heap, so what a thread frees
 is not kept resident in a heap of its own.
 
+`give_back`: the resident pages of an address range let go (`release_pages`, and
+`code_pages` for LLVM's code).
+
 Not done: a fixed 1 MB mmap threshold (`mallopt`), which gives every large array back the
 moment it is freed (Intel's whole run with report 309 MB against 326 MB here), because every
 such array is then mapped and faulted in afresh: the default sim run took 61,569 -> 920,161
@@ -83,17 +86,22 @@ def release_pages(a: np.ndarray, start: int, stop: int) -> int:
 
     Why: copying a large array into a larger one (a growing map) holds both at once; giving
     back the old one's pages as they are copied keeps one copy resident instead of two."""
-    advise = _glibc("madvise")
-    dontneed = getattr(mmap, "MADV_DONTNEED", None)
-    if advise is None or dontneed is None:
-        return start
     base = a.ctypes.data
     page = mmap.PAGESIZE
     lo = -(-(base + start) // page) * page  # first whole page at or after start
     hi = (base + stop) // page * page  # end of the last whole page before stop
-    if hi <= lo:
-        return start
-    advise.argtypes, advise.restype = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int], ctypes.c_int
-    if advise(lo, hi - lo, dontneed) != 0:
+    if hi <= lo or not give_back(lo, hi):
         return start
     return hi - base
+
+
+def give_back(lo: int, hi: int) -> bool:
+    """`madvise(MADV_DONTNEED)` on the page-aligned addresses [lo, hi): their resident pages
+    go; a private file mapping's read from the file again when next touched, anonymous memory
+    reads as zeros. True when done (Linux)."""
+    advise = _glibc("madvise")
+    dontneed = getattr(mmap, "MADV_DONTNEED", None)
+    if advise is None or dontneed is None:
+        return False
+    advise.argtypes, advise.restype = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int], ctypes.c_int
+    return advise(lo, hi - lo, dontneed) == 0
