@@ -12,36 +12,19 @@ import pytest
 
 from slamlab.code_pages import file_only_ranges
 
-SMAPS = """\
-00400000-00401000 r--p 00000000 fd:01 11 /usr/bin/python3.11
-Rss:                   4 kB
-Anonymous:             0 kB
-VmFlags: rd mr mw me
-7f0000000000-7f0000100000 r--p 00000000 fd:01 22 /env/site-packages/llvmlite/binding/libllvmlite.so
-Rss:                1024 kB
-Anonymous:             0 kB
-VmFlags: rd mr mw me
-7f0000100000-7f0000500000 r-xp 00100000 fd:01 22 /env/site-packages/llvmlite/binding/libllvmlite.so
-Rss:                4096 kB
-Anonymous:             0 kB
-VmFlags: rd ex mr mw me
-7f0000500000-7f0000600000 r--p 00500000 fd:01 22 /env/site-packages/llvmlite/binding/libllvmlite.so
-Rss:                1024 kB
-Anonymous:            12 kB
-VmFlags: rd mr mw me
-7f0000600000-7f0000610000 rw-p 00600000 fd:01 22 /env/site-packages/llvmlite/binding/libllvmlite.so
-Rss:                  64 kB
-Anonymous:             0 kB
-VmFlags: rd wr mr mw me
-7f0000610000-7f0000620000 rw-p 00000000 00:00 0
-Rss:                  64 kB
-Anonymous:            64 kB
-VmFlags: rd wr mr mw me
-7f0000700000-7f0000800000 r-xp 00000000 fd:01 33 /env/site-packages/numpy/core/libother.so
-Rss:                1024 kB
-Anonymous:             0 kB
-VmFlags: rd ex mr mw me
-"""
+LLVM = "/env/site-packages/llvmlite/binding/libllvmlite.so"
+# (range, permissions, file, resident kB, anonymous kB): the mappings of a process, as /proc/self/smaps lists them
+MAPPINGS = [
+    ("00400000-00401000", "r--p", "/usr/bin/python3.11", 4, 0),
+    ("7f0000000000-7f0000100000", "r--p", LLVM, 1024, 0),
+    ("7f0000100000-7f0000500000", "r-xp", LLVM, 4096, 0),
+    ("7f0000500000-7f0000600000", "r--p", LLVM, 1024, 12),  # relocated when loaded: 12 kB copied on write
+    ("7f0000600000-7f0000610000", "rw-p", LLVM, 64, 0),
+    ("7f0000610000-7f0000620000", "rw-p", "", 64, 64),  # anonymous memory
+    ("7f0000700000-7f0000800000", "r-xp", "/env/site-packages/numpy/core/libother.so", 1024, 0),
+]
+SMAPS = "".join(f"{rng} {perms} 00000000 fd:01 22 {path}".rstrip() + f"\nRss: {rss} kB\nAnonymous: {anon} kB\nVmFlags: rd mr\n"
+                for rng, perms, path, rss, anon in MAPPINGS)
 
 
 def test_only_the_librarys_read_only_mappings_holding_nothing_of_their_own_are_chosen(tmp_path: Path) -> None:
