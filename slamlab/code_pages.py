@@ -80,6 +80,7 @@ def give_back_llvm_pages_after_loads() -> bool:
         return True
     if not sys.platform.startswith("linux") or not hasattr(mmap, "MADV_DONTNEED"):
         return False
+    import llvmlite.binding  # noqa: F401  (maps libllvmlite.so, should numba not have yet)
     from numba.core import event
     from numba.core.compiler_lock import global_compiler_lock
 
