@@ -56,20 +56,7 @@ def file_only_ranges(name: str, smaps: Path = Path("/proc/self/smaps")) -> list[
     return out
 
 
-class _Dropper:
-    """Gives back the resident pages of fixed address ranges (`heap.give_back`)."""
-
-    def __init__(self, ranges: list[tuple[int, int]]) -> None:
-        self.ranges = ranges
-        self.calls = 0
-
-    def __call__(self) -> None:
-        self.calls += 1
-        for lo, hi in self.ranges:
-            give_back(lo, hi)
-
-
-_INSTALLED: list[_Dropper] = []
+_INSTALLED: list[bool] = []  # once per process
 
 
 def give_back_llvm_pages_after_loads() -> bool:
@@ -87,7 +74,10 @@ def give_back_llvm_pages_after_loads() -> bool:
     ranges = file_only_ranges(LIBRARY)
     if not ranges:
         return False
-    drop = _Dropper(ranges)
+
+    def drop() -> None:
+        for lo, hi in ranges:
+            give_back(lo, hi)
 
     class _AfterLoad(event.Listener):
         def on_start(self, ev: event.Event) -> None:
@@ -98,6 +88,6 @@ def give_back_llvm_pages_after_loads() -> bool:
                 drop()
 
     event.register("numba:compiler_lock", _AfterLoad())
-    _INSTALLED.append(drop)
+    _INSTALLED.append(True)
     drop()
     return True

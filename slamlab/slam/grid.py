@@ -303,8 +303,9 @@ class OccupancyGrid:
         if len(starts) <= 1:
             return
         sensors_xy = np.asarray(sensors_xy, dtype=np.float64)
-        lo = np.minimum(pts.min(axis=0), sensors_xy.min(axis=0)) if len(pts) else sensors_xy.min(axis=0)
-        hi = np.maximum(pts.max(axis=0), sensors_xy.max(axis=0)) if len(pts) else sensors_xy.max(axis=0)
+        lo, hi = sensors_xy.min(axis=0), sensors_xy.max(axis=0)
+        if len(pts):
+            lo, hi = np.minimum(lo, pts.min(axis=0)), np.maximum(hi, pts.max(axis=0))
         self.ensure(*lo, *hi)
         rows, cols = self.cells(pts)
         sensor_rows, sensor_cols = self.cells(sensors_xy)

@@ -57,14 +57,12 @@ def map_of_nodes(scans: Iterable[ScanPoints], poses: FloatArray, matcher: Likeli
     and the final match's map (`final_match`). `scans` may be made one at a time (a generator):
     each is let go once its map points are placed."""
     grid = OccupancyGrid(settings, (float(poses[0, 0]), float(poses[0, 1])), matcher.field_sigma_m, matcher.field_radius_m, walls_at_hits)
-    sensors, world = [], []
-    for pts, pose in zip(scans, poses):  # a scan at a time: only its map points are kept
-        sensors.append(points_to_world(pts.origin.reshape(1, 2), pose)[0])
-        world.append(points_to_world(map_points(matcher, pts, near_hits_m), pose))
-    starts = np.concatenate([[0], np.cumsum([len(w) for w in world])]).astype(np.int64)
-    joined = np.concatenate(world) if world else np.zeros((0, 2))
-    del world  # the joined copy is what is cast: not both through the ray-casting (the hospital's ~2 x 30 MB)
-    grid.insert_joined(np.array(sensors), joined, starts)
+    # a scan at a time: only its map points are kept, in the world frame with its lidar centre
+    placed = [ScanPoints(points_to_world(map_points(matcher, pts, near_hits_m), pose), points_to_world(pts.origin.reshape(1, 2), pose)[0])
+              for pts, pose in zip(scans, poses)]
+    batch = ScanBatch.of(placed)
+    del placed  # the joined copy is what is cast: not both through the ray-casting (the hospital's ~2 x 30 MB)
+    grid.insert_joined(batch.origins, batch.xy, batch.ends)
     return grid
 
 
