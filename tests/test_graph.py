@@ -1052,6 +1052,7 @@ def test_hits_near_the_lidar_stay_out_of_the_online_map_and_its_redraw_but_not_o
         return local, submaps.matching().grid
 
     def occupied_at(grid: OccupancyGrid, xy: np.ndarray) -> np.ndarray:
+        grid.unpark_all()  # a redraw leaves its rows parked (`slam/parked_rows.py`): read them back first
         r, c = grid.cells(xy)
         return grid.log_odds[r, c] > ms.occupied_threshold
 
@@ -1101,3 +1102,26 @@ def test_a_map_of_nodes_made_one_scan_at_a_time_is_the_map_of_the_list_and_relea
     assert submaps.memory_mb() > 0
     submaps.release()
     assert submaps.memory_mb() == 0 and not submaps.finished and submaps.anchors == anchors and submaps.peak_mb == peak > 0
+
+
+@pytest.mark.slow
+def test_the_online_map_parked_behind_the_robot_gives_the_bytes_of_a_run_that_parks_nothing(loop_log, monkeypatch):
+    """Rows of the online map, of its redraws and of the final match's map parked as soon as the
+    robot is a band away (instead of its reach and more): every read puts back what it reaches,
+    so the run is the one whose maps are all resident, to the bit (`slam/parked_rows.py`)."""
+    import slamlab.slam.graph.final_match as final_match
+    import slamlab.slam.graph.local as local
+
+    with monkeypatch.context() as mp:
+        mp.setattr(OccupancyGrid, "start_parking", lambda self: None)
+        resident = _run(loop_log)
+    assert resident.extras["graph"]["redraws"] > 0 and resident.extras["graph"]["final_match_s"] > 0
+    monkeypatch.setattr(local, "park_distance", lambda reach_m: 0.0)
+    monkeypatch.setattr(final_match, "park_distance", lambda reach_m: 0.0)
+    with _instances_of(OccupancyGrid) as made:
+        tight = _run(loop_log)
+    parked = [g for g in made if g.parked is not None]
+    assert len(parked) >= 2 + resident.extras["graph"]["redraws"]  # the online map, each redraw, the final match's map
+    assert all(g.parked.parks > 10 for g in parked) and sum(g.parked.unparks for g in parked) > 100
+    assert tight.trajectory.tobytes() == resident.trajectory.tobytes() and tight.causal.tobytes() == resident.causal.tobytes()
+    assert tight.log_odds.data.tobytes() == resident.log_odds.data.tobytes()

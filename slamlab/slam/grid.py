@@ -25,6 +25,7 @@ from slamlab.geometry import FloatArray
 from slamlab.config.slam import MapConfig
 from slamlab.heap import release_pages
 from slamlab.slam.field_cells import FieldCells, value_codes
+from slamlab.slam.parked_rows import BAND_ROWS, ParkedRows
 from slamlab.slam.raycast import (
     WALL_STEPS, copy_nonzero, field_radius_cells, kernel_bank, note_hits, raise_field, raycast_many_bands, raycast_update, raycast_update_noting,
     refresh_cells, update_field, update_field_bands,
@@ -42,6 +43,7 @@ NO_FLIP = (np.iinfo(np.int64).max, -1, np.iinfo(np.int64).max, -1)  # an empty b
 RAY_BAND_ROWS_MIN = 64  # `insert_many` ray-casts in row bands of at least this many rows on all cores
 PARALLEL_FIELD_CELLS = 1 << 20  # a field box of this many cells or more is recomputed in row bands on all cores
 FIELD_BAND_ROWS = 64  # rows a band (each band also reads the R rows of walls either side of it)
+DRAW_GROUP_BANDS = 4  # parked bands' worth of rows drawn at a time by `insert_joined` with parking (~2 M cells on the hospital's map)
 RELEASE_BAND_BYTES = 4 << 20  # `_copy_into` gives an old array over twice this size back in bands of about this size
 
 
@@ -148,6 +150,11 @@ class OccupancyGrid:
             self.field = np.zeros((n, n), dtype=self.bank.dtype)
         self.grow_count = 0
         self._flips = np.empty((0, 2), dtype=np.int64)  # scratch for `insert`: the cells a scan changed
+        # `park_beyond`: bands of rows far from the robot held compressed (`parked_rows`); None: every row resident.
+        # row_base / col_base: the global index (row / column 0 of the grid as made) of the arrays' first row / column
+        self.parked: ParkedRows | None = None
+        self.row_base = 0
+        self.col_base = 0
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -162,7 +169,79 @@ class OccupancyGrid:
     def nbytes(self) -> int:
         """Bytes the grid's arrays hold: log-odds, field codes, hit offsets."""
         arrays = (self.log_odds, self.field, self.hit_dx, self.hit_dy, self.hit_n)
-        return sum(a.nbytes for a in arrays if a is not None)
+        return sum(a.nbytes for a in arrays if a is not None) + (self.parked.nbytes if self.parked is not None else 0)
+
+    def start_parking(self) -> None:
+        """From now on `park_beyond` may hold far rows compressed (`parked_rows`). Every reader of
+        the arrays must then ask for its rows first (`need_rows`); the grid's own methods do.
+        Not for a grid that keeps hit offsets (`walls_at_hits`)."""
+        assert not self.walls_at_hits, "parking keeps the log-odds and the field, not hit offsets"
+        if self.parked is None:
+            self.parked = ParkedRows()
+
+    def _park_arrays(self) -> dict[str, np.ndarray]:
+        return {"log_odds": self.log_odds} if self.field is None else {"log_odds": self.log_odds, "field": self.field}
+
+    def need_rows(self, y_lo_m: float, y_hi_m: float) -> None:
+        """Put back the parked rows (`park_beyond`) within the field's reach of y in [y_lo_m, y_hi_m] (m),
+        before anything reads or writes cells there."""
+        if self.parked is None or not self.parked.bands:
+            return
+        halo = 2 * (self.field_radius if self.bank is not None else 0) + 2  # a field update reads R beyond the R it writes
+        lo = int(np.floor((y_lo_m - self.origin[1]) / self.res)) - halo
+        hi = int(np.floor((y_hi_m - self.origin[1]) / self.res)) + halo + 1
+        self._need_rows(lo, hi)
+
+    def _need_rows(self, lo: int, hi: int) -> None:
+        """The parked bands holding any of the grid's rows [lo, hi) (its own indices) put back."""
+        if self.parked is not None:
+            for i in self.parked.touching(lo + self.row_base, hi + self.row_base):
+                self.parked.unpark(i, self._park_arrays(), self.row_base, self.col_base)
+
+    def unpark_all(self) -> None:
+        """Every parked row back: for a reader of the whole grid."""
+        if self.parked is not None:
+            for i in list(self.parked.bands):
+                self.parked.unpark(i, self._park_arrays(), self.row_base, self.col_base)
+
+    def park_beyond(self, y_lo_m: float, y_hi_m: float) -> None:
+        """Hold compressed (`parked_rows`) every band of rows wholly outside y in [y_lo_m, y_hi_m] (m)."""
+        if self.parked is None:
+            return
+        self._park_outside(int(np.floor((y_lo_m - self.origin[1]) / self.res)), int(np.floor((y_hi_m - self.origin[1]) / self.res)) + 1)
+
+    def _park_outside(self, lo: int, hi: int) -> None:
+        """Every band wholly outside the grid's rows [lo, hi) (its own indices) parked."""
+        if self.parked is None:
+            return
+        B = BAND_ROWS
+        keep_lo, keep_hi = lo + self.row_base, hi + self.row_base
+        first, last = self.row_base // B, (self.row_base + self.shape[0] - 1) // B
+        arrays = self._park_arrays()
+        for i in range(first, last + 1):
+            if (i + 1) * B <= keep_lo or i * B >= keep_hi:
+                self.parked.park(i, arrays, self.row_base, self.col_base)
+
+    def _unpark_for_growth(self, pad_b: int, pad_t: int, pad_l: int, pad_r: int) -> None:
+        """Before the grid grows: the parked bands whose cells the field of the new margins reads
+        (`_refresh_field_margins`: R rows and columns in from the old edges) put back. A band with
+        no wall near a growing side stays parked: the margin's field in its rows is then what the
+        new empty cells give, whatever the band holds."""
+        if self.parked is None or not self.parked.bands:
+            return
+        reach = (self.field_radius if self.bank is not None else 0) + 1
+        H, W = self.shape
+        wanted: set[int] = set()
+        if pad_b:
+            wanted.update(self.parked.touching(self.row_base, self.row_base + reach))
+        if pad_t:
+            wanted.update(self.parked.touching(self.row_base + H - reach, self.row_base + H))
+        if pad_l:
+            wanted.update(self.parked.with_cells_in_columns("log_odds", self.col_base, self.col_base + reach, self.log_odds.dtype))
+        if pad_r:
+            wanted.update(self.parked.with_cells_in_columns("log_odds", self.col_base + W - reach, self.col_base + W, self.log_odds.dtype))
+        for i in sorted(wanted):
+            self.parked.unpark(i, self._park_arrays(), self.row_base, self.col_base)
 
     @property
     def field_radius(self) -> int:
@@ -178,6 +257,7 @@ class OccupancyGrid:
 
     def field_values(self) -> np.ndarray:
         """The field's values, float32 [H, W] (a decoded copy)."""
+        self.unpark_all()
         assert self.field is not None, "grid built without a likelihood field"
         return self.field_lut[self.field]
 
@@ -196,6 +276,7 @@ class OccupancyGrid:
         if pads == (0, 0, 0, 0):
             return
         pad_b, pad_t, pad_l, pad_r = pads
+        self._unpark_for_growth(pad_b, pad_t, pad_l, pad_r)
         H, W = self.shape
         self.log_odds = self._grown_array("log_odds", pad_b, pad_t, pad_l, pad_r)
         if self.walls_at_hits:
@@ -205,6 +286,8 @@ class OccupancyGrid:
             self.field = self._grown_array("field", pad_b, pad_t, pad_l, pad_r)
             self._refresh_field_margins(pad_b, pad_l, H, W)
         self.origin = grown_origin(self.origin, pad_l, pad_b, self.res)
+        self.row_base -= pad_b
+        self.col_base -= pad_l
         self.grow_count += 1
 
     def insert_cells(self, sensor_rc: tuple[int, int], rows: np.ndarray, cols: np.ndarray) -> None:
@@ -267,6 +350,7 @@ class OccupancyGrid:
         xs = np.append(points_xy[:, 0], sensor_xy[0])
         ys = np.append(points_xy[:, 1], sensor_xy[1])
         self.ensure(xs.min(), ys.min(), xs.max(), ys.max())
+        self.need_rows(ys.min(), ys.max())
         rows, cols = self.cells(points_xy)
         sr, sc = self.cells(np.asarray(sensor_xy, dtype=np.float64).reshape(1, 2))
         args = (self.log_odds, int(sr[0]), int(sc[0]), rows, cols, *self._updates(), np.float32(self.s.occupied_threshold))
@@ -282,6 +366,7 @@ class OccupancyGrid:
         n_free, n_occ = raycast_update_noting(*args, flips[:room])
         n_moved = self._note_hits(points_xy, rows, cols, flips[room:])
         if n_free + n_occ > room:  # more changes than room: the field again over their box, as before
+            self.unpark_all()
             self._refresh_field(self.field, 0, self.shape[0], 0, self.shape[1])
             return
         stale = flips[:n_free] if n_moved == 0 else np.concatenate([flips[:n_free], flips[room:room + n_moved]])
@@ -296,10 +381,12 @@ class OccupancyGrid:
             return
         self.insert_joined(sensors_xy, np.concatenate(points_xy), np.concatenate([[0], np.cumsum([len(p) for p in points_xy])]).astype(np.int64))
 
-    def insert_joined(self, sensors_xy: FloatArray, pts: FloatArray, starts: np.ndarray) -> None:
+    def insert_joined(self, sensors_xy: FloatArray, pts: FloatArray, starts: np.ndarray, park: bool = False) -> None:
         """`insert_many` of scans whose world hit points are joined in one array `pts` (N, 2) m,
         scan i's the rows starts[i]:starts[i + 1] ((K + 1,) int64, from 0): a caller that made
-        them one scan at a time lets its list go before the ray-casting's own arrays are made."""
+        them one scan at a time lets its list go before the ray-casting's own arrays are made.
+        `park` with parking on (`start_parking`): drawn a group of rows at a time, and left with
+        every row parked but the last (`_insert_joined_parked`)."""
         if len(starts) <= 1:
             return
         sensors_xy = np.asarray(sensors_xy, dtype=np.float64)
@@ -307,6 +394,10 @@ class OccupancyGrid:
         if len(pts):
             lo, hi = np.minimum(lo, pts.min(axis=0)), np.maximum(hi, pts.max(axis=0))
         self.ensure(*lo, *hi)
+        if park and self.parked is not None:
+            self._insert_joined_parked(sensors_xy, pts, starts)
+            return
+        self.unpark_all()  # every row is cast and its field computed
         rows, cols = self.cells(pts)
         sensor_rows, sensor_cols = self.cells(sensors_xy)
         # the grid's rows in bands, a few for each core (the result does not depend on them)
@@ -317,6 +408,38 @@ class OccupancyGrid:
         self._note_hits(pts, rows, cols, NO_CELLS)
         if self.field is not None:
             self._refresh_field(self.field, 0, self.shape[0], 0, self.shape[1])
+
+    def _insert_joined_parked(self, sensors_xy: FloatArray, pts: FloatArray, starts: np.ndarray) -> None:
+        """`insert_joined` for a large map that need not be resident all at once: drawn a group
+        of rows at a time, top to bottom. Each group gets every beam that crosses it, in the
+        scans' order (each cell the same additions in the same order as casting the whole grid:
+        the same log-odds); the field of a group is computed once the next group is drawn (it
+        reads R rows beyond its own: the whole field's values there), and the groups behind are
+        then parked. Each band is compressed once. Drawing the Freiburg hospital's map again
+        held all of it resident (~130 MB) at every loop closure late in the run."""
+        assert not self.walls_at_hits, "parking keeps no hit offsets"
+        self.unpark_all()  # a fresh grid holds nothing parked; a used one is drawn over as a whole
+        rows, cols = self.cells(pts)
+        sensor_rows, sensor_cols = self.cells(sensors_xy)
+        H, W = self.shape
+        G = DRAW_GROUP_BANDS * BAND_ROWS
+        R = self.field_radius if self.field is not None else 0
+        updates = self._updates()
+        # each beam's rows, from its scan's sensor to its end: a group casts only the beams that cross it
+        beam_sensor = np.repeat(sensor_rows, np.diff(starts))
+        beam_lo, beam_hi = np.minimum(beam_sensor, rows), np.maximum(beam_sensor, rows)
+        del beam_sensor
+        for top in range(0, H + G, G):
+            if top < H:
+                bottom = min(top + G, H)
+                cross = (beam_hi >= top) & (beam_lo < bottom)
+                group_starts = np.concatenate([[0], np.cumsum(cross)])[starts]  # each scan's beams that cross, in order
+                # the group's rows as a grid of their own: the same lines, shifted by `top` rows
+                raycast_many_bands(self.log_odds[top:bottom], sensor_rows - top, sensor_cols, rows[cross] - top, cols[cross], group_starts,
+                                   *updates, max(RAY_BAND_ROWS_MIN, -(-(bottom - top) // (4 * numba.get_num_threads()))))
+            if top >= G and self.field is not None:
+                self._refresh_field(self.field, top - G, min(top, H), 0, W)
+            self._park_outside(top - G - R, H)  # the groups behind, done; those ahead hold nothing yet
 
     def _note_hits(self, points_xy: FloatArray, rows: np.ndarray, cols: np.ndarray, moved: np.ndarray) -> int:
         """Take a scan's hits (world points (M, 2) m in cells rows, cols) into their cells' mean
@@ -355,16 +478,19 @@ class OccupancyGrid:
 
     def occupied(self) -> np.ndarray:
         """bool [H, W]: cells whose log-odds exceed the occupied threshold."""
+        self.unpark_all()
         return self.log_odds > self.s.occupied_threshold
 
     def to_image(self) -> GridImage:
         """The log-odds grid as a float32 GridImage (a copy)."""
+        self.unpark_all()
         return GridImage(data=self.log_odds.copy(), resolution_m=self.res, origin_xy=(float(self.origin[0]), float(self.origin[1])))
 
     def take_image(self) -> GridImage:
         """The log-odds grid as a float32 GridImage without a copy, for a grid that is done:
         it gives its arrays away and cannot be used after (a building's map is ~160 MB, and
         the copy doubled it at the end of every pose-graph run)."""
+        self.unpark_all()
         image = GridImage(data=self.log_odds, resolution_m=self.res, origin_xy=(float(self.origin[0]), float(self.origin[1])))
         self.log_odds = self.field = self.hit_dx = self.hit_dy = self.hit_n = None  # type: ignore[assignment]
         return image

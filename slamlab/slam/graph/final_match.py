@@ -30,7 +30,7 @@ from collections.abc import Callable
 import numpy as np
 
 from slamlab.geometry import FloatArray
-from slamlab.slam.graph.local import map_of_nodes
+from slamlab.slam.graph.local import REACH_MARGIN_M, map_of_nodes, park_distance, reach_of
 from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import LikelihoodFieldMatcher
 from slamlab.slam.scan import ScanBatch, ScanPoints
@@ -47,12 +47,19 @@ def match_on_final_map(trajectory: FloatArray, node_scans: np.ndarray, points: C
     scan i's points, `project(a, b)` scans a..b-1 as a batch. The first node, the scans before
     it and scans without points keep their pose. Returns a new array."""
     node_scans = np.asarray(node_scans, dtype=np.int64)
-    grid = map_of_nodes((points(int(i)) for i in node_scans), trajectory[node_scans], matcher, settings, walls_at_hits)
+    park = not walls_at_hits  # the map's rows far from the scans being matched held compressed (`map_of_nodes`)
+    grid = map_of_nodes((points(int(i)) for i in node_scans), trajectory[node_scans], matcher, settings, walls_at_hits, park=park)
     out = np.array(trajectory, dtype=np.float64, copy=True)
     for a in range(int(node_scans[0]) + 1, len(out), CHUNK_SCANS):
         b = min(a + CHUNK_SCANS, len(out))
         batch = project(a, b)
         has = np.flatnonzero(batch.counts > 0) + a
         if len(has):
+            ys, reach = trajectory[has, 1], reach_of(batch.xy)
+            if park:
+                grid.need_rows(float(ys.min()) - reach - REACH_MARGIN_M, float(ys.max()) + reach + REACH_MARGIN_M)
             out[has] = matcher.match_scans_on(grid, trajectory[has], batch.nonempty())[0]
+            if park:
+                keep = park_distance(reach)
+                grid.park_beyond(float(ys.min()) - keep, float(ys.max()) + keep)
     return out

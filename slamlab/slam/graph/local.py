@@ -50,20 +50,39 @@ def map_points(matcher: LikelihoodFieldMatcher, scan: ScanPoints, near_hits_m: f
 
 
 def map_of_nodes(scans: Iterable[ScanPoints], poses: FloatArray, matcher: LikelihoodFieldMatcher, settings: MapSettings,
-                 walls_at_hits: bool = False, near_hits_m: float = 0.0) -> OccupancyGrid:
+                 walls_at_hits: bool = False, near_hits_m: float = 0.0, park: bool = False) -> OccupancyGrid:
     """The map (with its likelihood field) of nodes' scans at `poses` (K, 3), drawn as the
     online map is: `map_points` of each scan, ray-cast in order, walls at their cells'
     centres or (`walls_at_hits`, `filter.wall_at=hits`) at their hits. The online map's redraw
     and the final match's map (`final_match`). `scans` may be made one at a time (a generator):
-    each is let go once its map points are placed."""
+    each is let go once its map points are placed. `park` (not with `walls_at_hits`): the map
+    drawn a group of rows at a time and left with its rows held compressed
+    (`OccupancyGrid.park_beyond`; its readers must ask for their rows, `need_rows`)."""
     grid = OccupancyGrid(settings, (float(poses[0, 0]), float(poses[0, 1])), matcher.field_sigma_m, matcher.field_radius_m, walls_at_hits)
     # a scan at a time: only its map points are kept, in the world frame with its lidar centre
     placed = [ScanPoints(points_to_world(map_points(matcher, pts, near_hits_m), pose), points_to_world(pts.origin.reshape(1, 2), pose)[0])
               for pts, pose in zip(scans, poses)]
     batch = ScanBatch.of(placed)
     del placed  # the joined copy is what is cast: not both through the ray-casting (the hospital's ~2 x 30 MB)
-    grid.insert_joined(batch.origins, batch.xy, batch.ends)
+    if park:
+        grid.start_parking()
+    grid.insert_joined(batch.origins, batch.xy, batch.ends, park)
     return grid
+
+
+REACH_MARGIN_M = 3.0  # beyond a scan's farthest point: what a match may move its pose, and more
+PARK_HYSTERESIS_M = 10.0  # rows are parked this much farther out than they are needed, so a robot pacing does not churn them
+
+
+def park_distance(reach_m: float) -> float:
+    """How far (m, in y) from the robot the online map's rows stay resident, for scans whose
+    farthest point is `reach_m` from the robot."""
+    return reach_m + REACH_MARGIN_M + PARK_HYSTERESIS_M
+
+
+def reach_of(body_xy: FloatArray) -> float:
+    """The farthest of points (robot frame, m) from the robot (0 for none)."""
+    return float(np.sqrt((body_xy ** 2).sum(axis=1).max())) if len(body_xy) else 0.0
 
 
 class LocalSlam:
@@ -86,6 +105,11 @@ class LocalSlam:
         self.chain = np.asarray(start, dtype=np.float64).copy()  # the newest node's chain pose (local frame)
         self.online = self.chain.copy()  # its online pose (the online map's frame)
         self.redraws = 0
+        # the online map's far rows held compressed (`OccupancyGrid.park_beyond`); reach_m: the farthest point seen (m)
+        self.park_far = self.grid is not None and not walls_at_hits
+        self.reach_m = 0.0
+        if self.park_far:
+            self.grid.start_parking()
         self._recent: deque = deque()  # (path m, chain pose, scan points) of the last nodes (`remember`)
 
     @property
@@ -120,6 +144,8 @@ class LocalSlam:
         if self.yaw_drift_gain_per_m > 0:  # the learnt yaw drift turns the prediction by b x d
             predicted[2] = wrap_angle(predicted[2] + self.yaw_drift * d)
         grid = self.grid if self.grid is not None else (self.submaps.matching().grid if self.submaps.active else None)
+        if self.grid is not None:
+            self._need(np.array([start[1], predicted[1]]), scan.xy)
         matches = grid is not None and len(scan.xy) > 0  # a map to match on and points to match: the learnt models learn only then
         matched = self._match(grid, predicted, scan) if matches else predicted
         before = self.online if self.grid is not None else self.chain
@@ -148,6 +174,8 @@ class LocalSlam:
         grid, pose = (self.grid, self.online) if self.grid is not None else (self.submaps.matching().grid if self.submaps.active else None, self.chain)
         if grid is None:
             return np.zeros((3, 3))
+        if self.grid is not None:
+            self._need(pose[1:2], scan.xy)
         cov = match_covariance(grid.field_cells, grid.origin, grid.res, pose, self.matcher.fine_points(scan), 0.0, 0.0)
         w, v = sym_eig(np.ascontiguousarray(cov[:2, :2]))
         out = np.zeros((3, 3))
@@ -182,7 +210,16 @@ class LocalSlam:
         """The poses (S, 3) where scans (none empty) fit the online map as it is now (the
         older active submap with local_map=submap), predicted in its frame."""
         grid = self.grid if self.grid is not None else self.submaps.matching().grid
+        if self.grid is not None:
+            self._need(predicted[:, 1], scans.xy if isinstance(scans, ScanBatch) else np.concatenate([scans.coarse, scans.fine]))
         return self.matcher.match_scans_on(grid, predicted, scans)[0]
+
+    def _need(self, ys: FloatArray, body_xy: FloatArray) -> None:
+        """Before the online map is read at poses whose y are `ys` (m) with points `body_xy`
+        (robot frame, m): its parked rows (`park_beyond`) within the points' reach put back.
+        A match moves a pose by its window and climb, well under `REACH_MARGIN_M`."""
+        reach = reach_of(body_xy)
+        self.grid.need_rows(float(ys.min()) - reach - REACH_MARGIN_M, float(ys.max()) + reach + REACH_MARGIN_M)
 
     def insert(self, node: int, scan: ScanPoints) -> list[FinishedSubmap]:
         """Add node `node`'s scan at its poses: the online map's and the submaps'; returns the
@@ -191,6 +228,11 @@ class LocalSlam:
             # lone far hits left out (probe: mean relation error 0.095 -> 0.075 m at 2x, 0.17 -> 0.10 m at 3x)
             walls = map_points(self.matcher, scan, self.near_hits_m)
             self.grid.insert(points_to_world(scan.origin.reshape(1, 2), self.online)[0], points_to_world(walls, self.online))
+            if self.park_far:
+                # the rows no scan from here can reach held compressed; `_need` puts them back on the way there
+                self.reach_m = max(self.reach_m, reach_of(scan.xy))
+                keep = park_distance(self.reach_m)
+                self.grid.park_beyond(float(self.online[1]) - keep, float(self.online[1]) + keep)
         return self.submaps.insert(node, self.chain, scan)
 
     def redraw(self, scans: Iterable[ScanPoints], poses: FloatArray) -> None:
@@ -200,7 +242,7 @@ class LocalSlam:
         assert self.grid is not None, "local_map=submap keeps no online map"
         self.redraws += 1
         self.grid = None  # let the old map go first: on a building the size of the hospital log it is ~300 MB
-        self.grid = map_of_nodes(scans, poses, self.matcher, self.settings, self.walls_at_hits, self.near_hits_m)
+        self.grid = map_of_nodes(scans, poses, self.matcher, self.settings, self.walls_at_hits, self.near_hits_m, park=self.park_far)
         self.online = np.asarray(poses[-1], dtype=np.float64).copy()
 
     def drop_online_map(self) -> None:
