@@ -1116,8 +1116,8 @@ def test_the_online_map_parked_behind_the_robot_gives_the_bytes_of_a_run_that_pa
         mp.setattr(OccupancyGrid, "start_parking", lambda self: None)
         resident = _run(loop_log)
     assert resident.extras["graph"]["redraws"] > 0 and resident.extras["graph"]["final_match_s"] > 0
-    monkeypatch.setattr(local, "park_distance", lambda reach_m: 0.0)
-    monkeypatch.setattr(final_match, "park_distance", lambda reach_m: 0.0)
+    monkeypatch.setattr(local, "park_distance", lambda reach_m, margin_m: 0.0)
+    monkeypatch.setattr(final_match, "park_distance", lambda reach_m, margin_m: 0.0)
     with _instances_of(OccupancyGrid) as made:
         tight = _run(loop_log)
     parked = [g for g in made if g.parked is not None]

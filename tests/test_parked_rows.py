@@ -110,3 +110,14 @@ def test_parking_gives_the_bands_pages_back_and_leaves_its_neighbours(rows):
         p.park(2, {"log_odds": a}, row_base=0, col_base=0)
     assert not a[2 * rows:3 * rows].any()
     assert a[:2 * rows].all() and a[3 * rows:].all()
+
+
+def test_the_rows_a_match_asks_for_grow_with_its_window_and_climb():
+    """A match reads its scan's points moved by the coarse offsets and the hill climb: a matcher
+    set to move farther asks for more rows than the 3 m the default needs."""
+    from slamlab.slam.graph.local import REACH_MARGIN_M, match_margin_m
+    from slamlab.slam.matcher import LikelihoodFieldMatcher
+
+    assert match_margin_m(LikelihoodFieldMatcher()) == REACH_MARGIN_M
+    wide = LikelihoodFieldMatcher(xy_half_width_m=1.0, xy_step_m=0.25)
+    assert match_margin_m(LikelihoodFieldMatcher(), wide) >= 1.0 + 16 * 0.25

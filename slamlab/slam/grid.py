@@ -169,7 +169,7 @@ class OccupancyGrid:
     def nbytes(self) -> int:
         """Bytes the grid's arrays hold: log-odds, field codes, hit offsets."""
         arrays = (self.log_odds, self.field, self.hit_dx, self.hit_dy, self.hit_n)
-        return sum(a.nbytes for a in arrays if a is not None) + (self.parked.nbytes if self.parked is not None else 0)
+        return sum(a.nbytes for a in arrays if a is not None)
 
     def start_parking(self) -> None:
         """From now on `park_beyond` may hold far rows compressed (`parked_rows`). Every reader of
@@ -294,12 +294,14 @@ class OccupancyGrid:
         """Ray-cast one scan given in cells (sensor (row, col), hits' rows and cols, all inside
         the grid) into a grid without a field or hit offsets: what `insert` does after `cells`."""
         assert self.field is None and not self.walls_at_hits, "insert_cells keeps neither a field nor hit offsets"
+        assert self.parked is None or not self.parked.bands, "insert_cells asks for no rows: not for a grid with parked rows"
         raycast_update(self.log_odds, int(sensor_rc[0]), int(sensor_rc[1]), rows, cols, *self._updates(),
                        np.float32(self.s.occupied_threshold), np.array(NO_FLIP, dtype=np.int64))
 
     def resize_empty(self, origin: FloatArray, shape: tuple[int, int]) -> None:
         """Make a grid that holds nothing yet (a fresh one, no field) `shape` cells at `origin` (m)."""
         assert self.field is None and not self.walls_at_hits and not self.log_odds.any(), "resize_empty is for an empty grid"
+        assert self.parked is None or not self.parked.bands, "resize_empty is for an empty grid (its parked rows hold cells)"
         self.log_odds = np.zeros(shape, dtype=np.float32)
         self.origin = np.asarray(origin, dtype=np.float64).copy()
 
@@ -338,6 +340,7 @@ class OccupancyGrid:
         """Compute the likelihood field of a grid built without one (the values `insert` would
         have kept up to date, scan by scan: tested) and keep it from now on."""
         assert self.field is None and field_sigma_m > 0, "the grid has a field already, or none is asked for"
+        self.unpark_all()  # the field of every row, from its log-odds
         self._start_bank(field_sigma_m, field_radius_m)
         assert self.bank is not None
         self.field = np.zeros(self.shape, dtype=self.bank.dtype)
@@ -424,6 +427,7 @@ class OccupancyGrid:
         H, W = self.shape
         G = DRAW_GROUP_BANDS * BAND_ROWS
         R = self.field_radius if self.field is not None else 0
+        assert R <= G, "a group's field reads R rows of the next group only"
         updates = self._updates()
         # each beam's rows, from its scan's sensor to its end: a group casts only the beams that cross it
         beam_sensor = np.repeat(sensor_rows, np.diff(starts))

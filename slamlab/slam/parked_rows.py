@@ -76,13 +76,14 @@ class ParkedRows:
 
     def unpark(self, index: int, arrays: dict[str, np.ndarray], row_base: int, col_base: int) -> None:
         """Put band `index` back into the grid's arrays (which may have grown since it was parked)."""
-        band = self.bands.pop(index)
+        band = self.bands[index]  # dropped once its rows are back (a failure leaves it parked, not lost)
         lo, hi = band.row_lo - row_base, band.row_hi - row_base
         c0 = band.col0 - col_base
         for name, a in arrays.items():
             block = band.blocks[name]
             if block is not None:
                 a[lo:hi, c0:c0 + band.width] = np.frombuffer(lz4.block.decompress(block), dtype=a.dtype).reshape(hi - lo, band.width)
+        del self.bands[index]
         self.unparks += 1
 
     def touching(self, row_lo: int, row_hi: int) -> list[int]:

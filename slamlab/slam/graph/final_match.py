@@ -30,7 +30,7 @@ from collections.abc import Callable
 import numpy as np
 
 from slamlab.geometry import FloatArray
-from slamlab.slam.graph.local import REACH_MARGIN_M, map_of_nodes, park_distance, reach_of
+from slamlab.slam.graph.local import map_of_nodes, match_margin_m, park_distance, reach_of
 from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import LikelihoodFieldMatcher
 from slamlab.slam.scan import ScanBatch, ScanPoints
@@ -50,6 +50,7 @@ def match_on_final_map(trajectory: FloatArray, node_scans: np.ndarray, points: C
     park = not walls_at_hits  # the map's rows far from the scans being matched held compressed (`map_of_nodes`)
     grid = map_of_nodes((points(int(i)) for i in node_scans), trajectory[node_scans], matcher, settings, walls_at_hits, park=park)
     out = np.array(trajectory, dtype=np.float64, copy=True)
+    margin = match_margin_m(matcher)
     for a in range(int(node_scans[0]) + 1, len(out), CHUNK_SCANS):
         b = min(a + CHUNK_SCANS, len(out))
         batch = project(a, b)
@@ -57,9 +58,9 @@ def match_on_final_map(trajectory: FloatArray, node_scans: np.ndarray, points: C
         if len(has):
             ys, reach = trajectory[has, 1], reach_of(batch.xy)
             if park:
-                grid.need_rows(float(ys.min()) - reach - REACH_MARGIN_M, float(ys.max()) + reach + REACH_MARGIN_M)
+                grid.need_rows(float(ys.min()) - reach - margin, float(ys.max()) + reach + margin)
             out[has] = matcher.match_scans_on(grid, trajectory[has], batch.nonempty())[0]
             if park:
-                keep = park_distance(reach)
+                keep = park_distance(reach, margin)
                 grid.park_beyond(float(ys.min()) - keep, float(ys.max()) + keep)
     return out

@@ -70,14 +70,23 @@ def map_of_nodes(scans: Iterable[ScanPoints], poses: FloatArray, matcher: Likeli
     return grid
 
 
-REACH_MARGIN_M = 3.0  # beyond a scan's farthest point: what a match may move its pose, and more
+REACH_MARGIN_M = 3.0  # beyond a scan's farthest point: at least what a match may move its pose (`match_margin_m`)
 PARK_HYSTERESIS_M = 10.0  # rows are parked this much farther out than they are needed, so a robot pacing does not churn them
 
 
-def park_distance(reach_m: float) -> float:
+def match_margin_m(*matchers: LikelihoodFieldMatcher) -> float:
+    """How far (m) beyond a scan's farthest point a match may read the map: what it may move a
+    pose from its prediction (the coarse offsets' reach, then the hill climb's at most 16 moves
+    a level, from half the offsets' step and halving: under 16 steps; Gauss-Newton's under 12),
+    plus a metre; `REACH_MARGIN_M` at least."""
+    move = max(float(np.abs(m.offsets[:, :2]).max(initial=0.0)) + 16.0 * m.xy_step_m for m in matchers)
+    return max(REACH_MARGIN_M, move + 1.0)
+
+
+def park_distance(reach_m: float, margin_m: float = REACH_MARGIN_M) -> float:
     """How far (m, in y) from the robot the online map's rows stay resident, for scans whose
-    farthest point is `reach_m` from the robot."""
-    return reach_m + REACH_MARGIN_M + PARK_HYSTERESIS_M
+    farthest point is `reach_m` from the robot and matches that read `margin_m` beyond it."""
+    return reach_m + margin_m + PARK_HYSTERESIS_M
 
 
 def reach_of(body_xy: FloatArray) -> float:
@@ -108,6 +117,7 @@ class LocalSlam:
         # the online map's far rows held compressed (`OccupancyGrid.park_beyond`); reach_m: the farthest point seen (m)
         self.park_far = self.grid is not None and not walls_at_hits
         self.reach_m = 0.0
+        self.margin_m = match_margin_m(self.matcher, self.step_matcher)
         if self.park_far:
             self.grid.start_parking()
         self._recent: deque = deque()  # (path m, chain pose, scan points) of the last nodes (`remember`)
@@ -217,9 +227,9 @@ class LocalSlam:
     def _need(self, ys: FloatArray, body_xy: FloatArray) -> None:
         """Before the online map is read at poses whose y are `ys` (m) with points `body_xy`
         (robot frame, m): its parked rows (`park_beyond`) within the points' reach put back.
-        A match moves a pose by its window and climb, well under `REACH_MARGIN_M`."""
+        A match reads at most `margin_m` beyond (`match_margin_m`)."""
         reach = reach_of(body_xy)
-        self.grid.need_rows(float(ys.min()) - reach - REACH_MARGIN_M, float(ys.max()) + reach + REACH_MARGIN_M)
+        self.grid.need_rows(float(ys.min()) - reach - self.margin_m, float(ys.max()) + reach + self.margin_m)
 
     def insert(self, node: int, scan: ScanPoints) -> list[FinishedSubmap]:
         """Add node `node`'s scan at its poses: the online map's and the submaps'; returns the
@@ -231,7 +241,7 @@ class LocalSlam:
             if self.park_far:
                 # the rows no scan from here can reach held compressed; `_need` puts them back on the way there
                 self.reach_m = max(self.reach_m, reach_of(scan.xy))
-                keep = park_distance(self.reach_m)
+                keep = park_distance(self.reach_m, self.margin_m)
                 self.grid.park_beyond(float(self.online[1]) - keep, float(self.online[1]) + keep)
         return self.submaps.insert(node, self.chain, scan)
 
