@@ -195,14 +195,18 @@ class OccupancyGrid:
     def _need_rows(self, lo: int, hi: int) -> None:
         """The parked bands holding any of the grid's rows [lo, hi) (its own indices) put back."""
         if self.parked is not None:
-            for i in self.parked.touching(lo + self.row_base, hi + self.row_base):
-                self.parked.unpark(i, self._park_arrays(), self.row_base, self.col_base)
+            self._put_back(self.parked.touching(lo + self.row_base, hi + self.row_base))
 
     def unpark_all(self) -> None:
         """Every parked row back: for a reader of the whole grid."""
         if self.parked is not None:
-            for i in list(self.parked.bands):
-                self.parked.unpark(i, self._park_arrays(), self.row_base, self.col_base)
+            self._put_back(list(self.parked.bands))
+
+    def _put_back(self, bands: list[int]) -> None:
+        """These parked bands' rows back in the arrays."""
+        assert self.parked is not None
+        for i in bands:
+            self.parked.unpark(i, self._park_arrays(), self.row_base, self.col_base)
 
     def park_beyond(self, y_lo_m: float, y_hi_m: float) -> None:
         """Hold compressed (`parked_rows`) every band of rows wholly outside y in [y_lo_m, y_hi_m] (m)."""
@@ -219,7 +223,7 @@ class OccupancyGrid:
         first, last = self.row_base // B, (self.row_base + self.shape[0] - 1) // B
         arrays = self._park_arrays()
         for i in range(first, last + 1):
-            if (i + 1) * B <= keep_lo or i * B >= keep_hi:
+            if ((i + 1) * B <= keep_lo or i * B >= keep_hi) and i not in self.parked.bands:
                 self.parked.park(i, arrays, self.row_base, self.col_base)
 
     def _unpark_for_growth(self, pad_b: int, pad_t: int, pad_l: int, pad_r: int) -> None:
@@ -240,8 +244,7 @@ class OccupancyGrid:
             wanted.update(self.parked.with_cells_in_columns("log_odds", self.col_base, self.col_base + reach, self.log_odds.dtype))
         if pad_r:
             wanted.update(self.parked.with_cells_in_columns("log_odds", self.col_base + W - reach, self.col_base + W, self.log_odds.dtype))
-        for i in sorted(wanted):
-            self.parked.unpark(i, self._park_arrays(), self.row_base, self.col_base)
+        self._put_back(sorted(wanted))
 
     @property
     def field_radius(self) -> int:

@@ -48,7 +48,7 @@ class ParkedRows:
 
     def __init__(self) -> None:
         self.bands: dict[int, ParkedBand] = {}
-        self.parks = 0  # bands parked so far (a count for the run's metrics and tests)
+        self.parks = 0  # bands parked and put back so far (counts the tests read)
         self.unparks = 0
 
     @property

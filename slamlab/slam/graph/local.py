@@ -83,7 +83,7 @@ def match_margin_m(*matchers: LikelihoodFieldMatcher) -> float:
     return max(REACH_MARGIN_M, move + 1.0)
 
 
-def park_distance(reach_m: float, margin_m: float = REACH_MARGIN_M) -> float:
+def park_distance(reach_m: float, margin_m: float) -> float:
     """How far (m, in y) from the robot the online map's rows stay resident, for scans whose
     farthest point is `reach_m` from the robot and matches that read `margin_m` beyond it."""
     return reach_m + margin_m + PARK_HYSTERESIS_M
@@ -221,14 +221,14 @@ class LocalSlam:
         older active submap with local_map=submap), predicted in its frame."""
         grid = self.grid if self.grid is not None else self.submaps.matching().grid
         if self.grid is not None:
-            self._need(predicted[:, 1], scans.xy if isinstance(scans, ScanBatch) else np.concatenate([scans.coarse, scans.fine]))
+            self._need(predicted[:, 1], *((scans.xy,) if isinstance(scans, ScanBatch) else (scans.coarse, scans.fine)))
         return self.matcher.match_scans_on(grid, predicted, scans)[0]
 
-    def _need(self, ys: FloatArray, body_xy: FloatArray) -> None:
+    def _need(self, ys: FloatArray, *body_xy: FloatArray) -> None:
         """Before the online map is read at poses whose y are `ys` (m) with points `body_xy`
-        (robot frame, m): its parked rows (`park_beyond`) within the points' reach put back.
-        A match reads at most `margin_m` beyond (`match_margin_m`)."""
-        reach = reach_of(body_xy)
+        (robot frame, m; one array or more): its parked rows (`park_beyond`) within the points'
+        reach put back. A match reads at most `margin_m` beyond (`match_margin_m`)."""
+        reach = max(reach_of(xy) for xy in body_xy)
         self.grid.need_rows(float(ys.min()) - reach - self.margin_m, float(ys.max()) + reach + self.margin_m)
 
     def insert(self, node: int, scan: ScanPoints) -> list[FinishedSubmap]:
