@@ -25,7 +25,7 @@ from omegaconf import DictConfig
 
 import slamlab.config.store  # noqa: F401  (the schemas the YAML files extend, whatever the config path: -cp, verify)
 from slamlab.cli.overrides import check_overrides, hydra_mode_unset
-from slamlab.code_pages import give_back_llvm_pages_after_loads
+from slamlab.code_pages import give_back_llvm_pages_after_loads, start_numba_runtime
 from slamlab.errors import SlamlabError
 from slamlab.interrupt import EXIT_INTERRUPTED, RunInterrupted
 from slamlab.io.rundir import RunFile
@@ -188,6 +188,7 @@ def _run_job(cfg: DictConfig, hc: Any, multirun: bool) -> None:
     """One run (or one job of a sweep): the pipeline and its report, errors said in one line."""
     _skip_numba_probes()
     give_back_llvm_pages_after_loads()  # LLVM's code resident only while numba loads a kernel
+    start_numba_runtime()  # its first load's LLVM pages now, while the process is small, not on top of the run's data
     if multirun and "BasicLauncher" not in str(hc.launcher.get("_target_", "")):
         _limit_threads_for_parallel_jobs()  # joblib, submitit, ray: jobs run side by side
     run_dir = Path(hc.runtime.output_dir)

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from slamlab import paths
+from slamlab.heap import give_back_file_pages
 
 log = logging.getLogger(__name__)
 
@@ -63,11 +64,13 @@ def read_entry(kind: str, name: str) -> tuple[dict[str, np.ndarray], dict] | Non
         meta = json.loads((folder / META).read_text())
         arrays = {}
         for key in meta["arrays"]:
-            arrays[key] = np.asarray(np.load(folder / f"{key}.npy", mmap_mode="r"))
-            if checksum(arrays[key]) != int(meta["crc32"][key]):
+            mapped = np.load(folder / f"{key}.npy", mmap_mode="r")
+            if checksum(mapped) != int(meta["crc32"][key]):
                 warnings.warn(f"{folder / (key + '.npy')}: the cached copy changed since it was written (its checksum"
                               " differs): reading the log again", RuntimeWarning, stacklevel=2)
                 return None
+            give_back_file_pages(mapped)  # the check read every page; the run reads a scan at a time
+            arrays[key] = np.asarray(mapped)
     except (OSError, ValueError, KeyError, TypeError) as exc:
         warnings.warn(f"{folder / (key if key == META else key + '.npy')}: the cached copy is unreadable ({exc}):"
                       " reading the log again", RuntimeWarning, stacklevel=2)
