@@ -38,7 +38,18 @@ def _grey_cases() -> list[np.ndarray]:
         *(e.reshape(1, -1) for e in near),
         np.array([[np.nan, -0.5, 1.5, 0.3]]),
         1.0 - 1.0 / (1.0 + np.exp(-log_odds.astype(np.float64))),
+        _tall_with_every_kind(rng),
     ]
+
+
+def _tall_with_every_kind(rng: np.random.Generator) -> np.ndarray:
+    """Taller than the rows `grey_rgba` converts at a time (its last band partial), with NaN and
+    values below 0 and above 1 in several bands."""
+    v = rng.random((2 * png._BAND_ROWS + 45, 23))
+    v[rng.random(v.shape) < 0.05] = np.nan
+    v[rng.random(v.shape) < 0.05] = -0.3
+    v[rng.random(v.shape) < 0.05] = 1.7
+    return v
 
 
 @pytest.mark.parametrize("case", range(len(_grey_cases())))

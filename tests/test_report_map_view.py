@@ -39,6 +39,20 @@ def test_the_observed_rows_and_columns_found_band_by_band_are_the_whole_masks():
     assert view.image.shape == (-(-(r1 - r0) // k), -(-(c1 - c0) // k))
 
 
+def test_the_view_computed_in_place_a_band_at_a_time_is_the_formula_on_the_whole_crop():
+    """The grey levels are 1 - P(occupied) of each block's most occupied cell, computed in place a
+    band at a time: bit for bit the formula's value on the whole reduced crop at once."""
+    rng = np.random.default_rng(7)
+    band = figures.KNOWN_BAND_ROWS
+    data = rng.normal(0.0, 12.0, (3 * band + 29, 211)).astype(np.float32)  # beyond the +-30 clip too
+    m = LogOddsMap(data=data, resolution_m=0.05, origin_xy=(0.0, 0.0))
+    for max_px, k in ((5000, 1), (300, 3)):
+        view = figures.prepare_map(m, max_px)
+        crop = figures.block_max(data, k)
+        expected = 1.0 - 1.0 / (1.0 + np.exp(-np.clip(crop.astype(np.float64), -30, 30)))
+        assert view.image.dtype == np.float64 and np.array_equal(view.image, expected)
+
+
 def _written_map(tmp_path, data: np.ndarray, **kw):
     from slamlab.io.atomic import write_npz_fast
 

@@ -23,6 +23,7 @@ import numpy as np
 
 # plt.imsave's defaults: a 256-entry colour table (rcParams image.lut) and 100 dpi.
 _LUT_SIZE = 256
+_BAND_ROWS = 128  # rows of `grey_rgba`'s input converted at a time
 _DPI = 100
 
 
@@ -31,21 +32,24 @@ def grey_rgba(values: np.ndarray) -> np.ndarray:
     "gray" colormap with vmin=0, vmax=1 renders it: value v takes table entry
     floor(v * 256) (1.0 takes the last), whose level is floor(255 * entry / 255) in
     float64; NaN is transparent black; values outside [0, 1] take the end colours."""
-    v = np.array(values, dtype=np.float64)  # a copy: scaled in place below
-    if v.ndim != 2:
-        raise ValueError(f"expected a 2-D array of values in [0, 1], got shape {v.shape}")
-    bad = np.isnan(v)
-    v *= _LUT_SIZE
-    v[v == _LUT_SIZE] = _LUT_SIZE - 1
-    with np.errstate(invalid="ignore"):
-        idx = v.astype(np.int64)
-    np.clip(idx, 0, _LUT_SIZE - 1, out=idx)  # below 0: first colour, above 1: last
+    values = np.asarray(values)
+    if values.ndim != 2:
+        raise ValueError(f"expected a 2-D array of values in [0, 1], got shape {values.shape}")
     # matplotlib builds the table with linspace and truncates table * 255 to bytes
     levels = (np.linspace(0.0, 1.0, _LUT_SIZE) * 255).astype(np.uint8)
-    rgba = np.empty(v.shape + (4,), dtype=np.uint8)
-    rgba[..., :3] = levels[idx][..., None]
-    rgba[..., 3] = 255
-    rgba[bad] = 0
+    rgba = np.empty(values.shape + (4,), dtype=np.uint8)
+    for r in range(0, values.shape[0], _BAND_ROWS):  # a band at a time: whole-image float64 / int64 temporaries were 4x the result
+        v = np.array(values[r : r + _BAND_ROWS], dtype=np.float64)  # a copy: scaled in place below
+        bad = np.isnan(v)
+        v *= _LUT_SIZE
+        v[v == _LUT_SIZE] = _LUT_SIZE - 1
+        with np.errstate(invalid="ignore"):
+            idx = v.astype(np.int64)
+        np.clip(idx, 0, _LUT_SIZE - 1, out=idx)  # below 0: first colour, above 1: last
+        band = rgba[r : r + _BAND_ROWS]
+        band[..., :3] = levels[idx][..., None]
+        band[..., 3] = 255
+        band[bad] = 0
     return rgba
 
 

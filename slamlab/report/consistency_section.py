@@ -62,7 +62,9 @@ def overlay_figure(m: LogOddsMap, layers: dict[str, np.ndarray], spans: list[dic
     x0, x1, y0, y1 = view.extent
     aspect = (y1 - y0) / max(x1 - x0, 1e-9)
     fig, ax = subplots(figsize=(width_in, float(np.clip(width_in * 0.8 * aspect, 4.0, 13.0))))
-    light = 0.55 + 0.45 * view.image  # walls dark grey, free white: the overlay stays readable
+    light = view.image  # walls dark grey, free white: the overlay stays readable (0.55 + 0.45 v, in place: this view's own array)
+    light *= 0.45
+    light += 0.55
     draw_map(ax, type(view)(image=light, extent=view.extent))
     ox, oy = (float(v) for v in np.asarray(layers["origin_xy"]).reshape(2))
     share = np.asarray(layers.get("region_share", np.zeros((0, 0))), dtype=float)
