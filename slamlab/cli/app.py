@@ -342,7 +342,8 @@ def main() -> None:
         # The process ends here: without this, Python's last full collections at exit scan
         # every object the run imported or kept (0.6 s of CPU after a one-scan run). Frozen
         # objects are freed with the process instead; files are closed and logs flushed by
-        # then (logging flushes in its atexit hook, which still runs).
+        # then (logging flushes in its atexit hook, which still runs, or in `command` before a
+        # single run's `os._exit`).
         gc.freeze()
 
 
