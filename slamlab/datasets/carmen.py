@@ -684,7 +684,9 @@ def _parse_log_cached(path: Path, max_range_m: float | None, on_bad_line: str) -
             # go on with what was written, as a later run would: the log's pages are then the
             # file's, given back after the check, not the parse's arrays on the heap (the
             # hospital's first run: 395 -> 380 MB at its peak). The same values (`tests/test_carmen_cache.py`)
-            written = array_cache.read_entry(_CACHE_KIND, entry)
+            with warnings.catch_warnings():  # a first run of the same log replacing it meanwhile: keep the parse
+                warnings.simplefilter("ignore")
+                written = array_cache.read_entry(_CACHE_KIND, entry)
             if written is not None:
                 parsed = _ParsedLog(_from_cache(*written).blocks, parsed.max_range_m, parsed.warnings)
     for category, message in parsed.warnings:
