@@ -164,6 +164,23 @@ def test_small_flaser_log(tmp_path):
     assert seq.scans[0].ranges.tolist() == pytest.approx([1.0, 2.0, 20.0, 3.5, 20.0])
 
 
+def test_the_saturation_value_is_found_across_groups_of_scans(tmp_path):
+    # two beam counts (two groups, read as separate blocks): the plateau at 8.0 is counted over
+    # both, and NaN, inf, negative and zero readings are not readings of it
+    def log(top_readings: int) -> str:
+        short = [flaser([1.0, 8.0, float("nan")], t=0.1), flaser([2.0, float("inf"), -1.0], t=0.2)]
+        long = [flaser([3.0, 0.0, 4.0, 5.0], t=0.3), flaser([6.0, 7.0, 8.0 if top_readings > 1 else 7.5, 2.0], t=0.4)]
+        return "\n".join([*short, *long]) + "\n"
+
+    with pytest.warns(RuntimeWarning, match="negative, NaN or inf"):
+        seq = load_carmen(write(tmp_path / "two.clf", log(2)))
+    assert seq.max_range_m == 8.0  # 8.0 twice, once in each group: a plateau
+    assert seq.scans[0].valid.tolist() == [True, False, False]
+    with pytest.warns(RuntimeWarning, match="3 negative, NaN or inf"):
+        once = load_carmen(write(tmp_path / "once.clf", log(1)))
+    assert once.scans[0].valid.tolist() == [True, True, False]  # 8.0 seen once is no plateau: a reading
+
+
 def test_frames_are_read_only(tmp_path):
     s = load_carmen(write(tmp_path / "small.clf", SMALL_LOG)).scans[0]
     with pytest.raises(ValueError, match="read-only"):
