@@ -353,31 +353,33 @@ def command() -> None:
     written and closed; the teardown only frees what the process's end frees anyway, and the
     C++ libraries' destructors (LLVM's, GTSAM's) read their code back in to do it: a one-scan
     run's whole-process peak was 149 MB until it exited and 158 MB after (`/usr/bin/time`),
-    and the teardown took 0.03-0.1 s. A sweep (`-m`, or `hydra.mode` set anywhere), and any
-    command line with a Hydra flag, ends the normal way: its launchers' exit hooks stop their workers (Ray's processes). An exception
-    other than SystemExit also ends the normal way, with its traceback."""
+    and the teardown took 0.03-0.1 s. A sweep (`hydra.mode` set anywhere, or any Hydra flag:
+    argparse reads `--multi` and `-mc job` as `-m` too) ends the normal way: its launchers'
+    exit hooks stop their workers (Ray's processes). An exception other than SystemExit also
+    ends the normal way, with its traceback."""
     argv = sys.argv[1:]
-    # Any Hydra flag ends the normal way: argparse also reads `--multi` and `-mc job` as a sweep
     if any(a.startswith("-") for a in argv) or not hydra_mode_unset(argv):
         main()
         return
-    code: object = 0
+    code: object = None
     try:
         main()
     except SystemExit as exc:
         code = exc.code
     if code is None:
-        code = 0
-    elif not isinstance(code, int):  # sys.exit("message"): printed, status 1, as Python does
+        status = 0
+    elif isinstance(code, int):
+        status = code & 0xFF  # the status the shell sees, as Python's own exit gives it
+    else:  # sys.exit("message"): printed, status 1, as Python does
         print(code, file=sys.stderr)
-        code = 1
+        status = 1
     logging.shutdown()  # flush and close every handler (slamlab.log), as Python's own exit would
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
         except (OSError, ValueError):  # a closed or broken pipe: nothing more can be said there
             pass
-    os._exit(code & 0xFF)  # the status the shell sees, as Python's own exit gives it
+    os._exit(status)
 
 
 if __name__ == "__main__":

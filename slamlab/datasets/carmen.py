@@ -689,7 +689,7 @@ def _parse_log_cached(path: Path, max_range_m: float | None, on_bad_line: str) -
                 warnings.simplefilter("ignore")
                 written = array_cache.read_entry(_CACHE_KIND, entry)
             if written is not None:
-                parsed = _ParsedLog(_from_cache(*written).blocks, parsed.max_range_m, parsed.warnings)
+                parsed.blocks = _from_cache(*written).blocks
     for category, message in parsed.warnings:
         warnings.warn(message, category, stacklevel=3)
     return parsed
