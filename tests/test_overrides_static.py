@@ -8,7 +8,7 @@ import pytest
 from hydra import compose, initialize_config_module
 from omegaconf import OmegaConf
 
-from slamlab.cli.overrides import PRESET_GROUP, _dotted_keys, check_overrides, config_groups, hydra_mode_unset, static_keys
+from slamlab.cli.overrides import PRESET_GROUP, _dotted_keys, check_overrides, config_groups, hydra_mode_unset, multirun_flag, static_keys
 
 GROUPS = config_groups()
 CASES = (
@@ -80,3 +80,25 @@ def test_unknown_keys_still_get_the_composed_message():
     msg = check_overrides(["dataset.on_bad_line=skip"])
     assert msg is not None and msg.startswith("unknown key 'dataset.on_bad_line'")
     assert check_overrides(["+experiment=lidar2d", "dataset.on_bad_line=skip"]) is None
+
+
+@pytest.mark.parametrize(("argv", "sweep"), [
+    (["-m", "particles=1,2"], True), (["--multirun", "seed=1"], True), (["--multi", "seed=1"], True), (["--m"], True),
+    (["-mc", "job"], True), (["-cn", "config", "-m"], True), (["hydra.run.dir=out", "seed=-m"], False), (["seed=1"], False),
+    (["-c", "nonesuch"], False),  # refused by Hydra's parser: Hydra reports it, no sweep here
+])  # fmt: skip
+def test_a_sweep_flag_is_read_as_hydras_parser_reads_it(argv, sweep):
+    assert multirun_flag(argv) is sweep
+
+
+def test_a_sweep_by_any_flag_spelling_claims_no_run_folder(tmp_path):
+    from slamlab.cli import app
+    from slamlab.io.rundir import RunFile
+
+    folder = tmp_path / "r"
+    assert app._claim_given_run_dir(["--multi", f"hydra.run.dir={folder}"]) is None
+    assert not folder.exists()
+    claimed = app._claim_given_run_dir([f"hydra.run.dir={folder}"])  # a single run claims it
+    assert claimed == (folder, True) and (folder / RunFile.CLAIM).exists()
+    app._release_unused_claim(claimed)
+    assert not folder.exists()

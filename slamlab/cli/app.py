@@ -24,7 +24,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 import slamlab.config.store  # noqa: F401  (the schemas the YAML files extend, whatever the config path: -cp, verify)
-from slamlab.cli.overrides import check_overrides, hydra_mode_unset
+from slamlab.cli.overrides import check_overrides, hydra_mode_unset, multirun_flag
 from slamlab.code_pages import give_back_llvm_pages_after_loads, start_numba_runtime
 from slamlab.errors import SlamlabError
 from slamlab.interrupt import EXIT_INTERRUPTED, RunInterrupted
@@ -253,7 +253,7 @@ def _claim_given_run_dir(argv: list[str]) -> tuple[Path, bool] | None:
     into it before the app runs, so a run refused later would already have overwritten the
     other run's saved config. Returns (the folder, whether it was created here), or exits 2
     if another run holds it."""
-    if "-m" in argv or "--multirun" in argv:
+    if multirun_flag(argv):
         return None  # sweeps write into hydra.sweep.dir; every job claims its own folder
     dirs = [arg.split("=", 1)[1] for arg in argv if arg.startswith("hydra.run.dir=")]
     if not dirs or "${" in dirs[-1]:

@@ -12,6 +12,7 @@ module is sure of are reported; anything else is left to Hydra's own messages.
 
 from __future__ import annotations
 
+import argparse
 import difflib
 import functools
 from importlib import resources
@@ -273,6 +274,22 @@ def _hydra_mode(data: dict) -> set[str]:
     decides whether Hydra runs a job or a sweep (`hydra_mode_unset`)."""
     hydra = data.get("hydra")
     return {"hydra.mode"} if isinstance(hydra, dict) and "mode" in hydra else set()
+
+
+def multirun_flag(argv: list[str]) -> bool:
+    """Whether the command line asks for a sweep by flag, read by Hydra's own argument parser:
+    argparse takes any unique prefix of `--multirun` (`--multi`, `--m`) and short flags joined
+    (`-mc job`) as `-m` too. A command line that parser refuses is no sweep here: Hydra reports
+    it when it starts."""
+    from hydra._internal.utils import get_args_parser  # Hydra's parser, so the two cannot disagree
+
+    parser = get_args_parser()
+    parser.exit_on_error = False
+    try:
+        args, _ = parser.parse_known_args(argv)
+    except argparse.ArgumentError:
+        return False
+    return bool(args.multirun)
 
 
 def hydra_mode_unset(argv: list[str]) -> bool:
