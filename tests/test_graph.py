@@ -1125,3 +1125,49 @@ def test_the_online_map_parked_behind_the_robot_gives_the_bytes_of_a_run_that_pa
     assert all(g.parked.parks > 10 for g in parked) and sum(g.parked.unparks for g in parked) > 100
     assert tight.trajectory.tobytes() == resident.trajectory.tobytes() and tight.causal.tobytes() == resident.causal.tobytes()
     assert tight.log_odds.data.tobytes() == resident.log_odds.data.tobytes()
+
+
+def _room_scan() -> np.ndarray:
+    """A room's walls seen from (0, 0), body frame (m): an end wall, two side walls of different reach
+    and a stub, so that the match pins the yaw."""
+    t = np.linspace(0.0, 1.0, 81)
+    return np.concatenate([np.stack([np.full(81, 3.0), -1.5 + 3.5 * t], axis=1), np.stack([-1.0 + 4.0 * t, np.full(81, 2.0)], axis=1),
+                           np.stack([-1.0 + 4.0 * t[:61], np.full(61, -1.5)], axis=1), np.stack([np.full(21, -1.0), 1.0 + t[:21]], axis=1)])
+
+
+@pytest.mark.parametrize(("turn", "check_rad", "recent", "taken"), [
+    (0.0, 0.0, "room", 0), (0.0, 0.1, "room", 1), (0.12, 0.1, "room", 0), (0.0, 0.2, "room", 0), (0.0, 0.1, "far wall", 0),
+])  # fmt: skip
+def test_a_node_turned_by_an_old_misplaced_map_keeps_the_recent_submaps_motion_when_they_clearly_fit_and_the_odometry_agrees(
+        turn, check_rad, recent, taken):
+    # The online map holds two of the room's walls 0.12 rad turned (a place mapped long ago, before the loop closed,
+    # where the drifted estimate put it then); the submap (recent scans) holds the room as the robot sees it now. The robot stands
+    # still (or, in the third case, the odometry says it turned 0.12 rad): the online map's match turns it 0.12 rad.
+    # In the last case the recent scans saw only the end wall: they fit the scan no better than the online map
+    # does, and the online map's match stands.
+    from slamlab.geometry import se2_compose
+    from slamlab.slam.graph.local import LocalSlam
+    from slamlab.slam.graph.submaps import Submaps
+    from slamlab.slam.grid import MapSettings
+    from slamlab.slam.matcher import LikelihoodFieldMatcher
+    from slamlab.slam.scan import ScanPoints, points_to_world
+
+    scan = ScanPoints(xy=_room_scan(), origin=np.zeros(2))
+    matcher, ms = LikelihoodFieldMatcher(), MapSettings()
+    submaps = Submaps(ms, 20, matcher.field_sigma_m, matcher.field_radius_m, field_when_finished=True)
+    local = LocalSlam(matcher, ms, submaps, "map", np.zeros(3), step_matcher=matcher.with_yaw_window(0.2), check_rad=check_rad)
+    old = np.array([0.0, 0.0, 0.12])
+    for _ in range(3):
+        local.grid.insert(np.zeros(2), points_to_world(scan.xy[:162], old))
+    seen = scan if recent == "room" else ScanPoints(xy=scan.xy[:81], origin=np.zeros(2))
+    submaps.insert(0, np.zeros(3), seen)
+    motion = local.step(np.array([0.0, 0.0, turn]), scan)
+    assert local.checks_taken == taken
+    by_map = abs(float(motion[2]) - 0.12) < 0.02
+    assert by_map == (taken == 0)  # the map's turn, or the submap's (none: the odometry's stand-still)
+    if taken:
+        assert abs(float(motion[2])) < 0.02 and np.allclose(local.online, se2_compose(np.zeros(3), motion))
+    from slamlab.config.slam import GraphFilterConfig  # a negative tolerance is the user's mistake, named
+
+    with pytest.raises(ConfigError, match="filter.local_check_rad"):
+        GraphFilterConfig(local_check_rad=-0.1)

@@ -351,6 +351,17 @@ class GraphFilterConfig:
     # online path worse at 0.15, 0.35 and 0.75 m steps (causal 0.022 -> 0.041, 0.020 -> 0.056, 0.053 -> 0.073); at 0.5
     # Intel is as before but a people probe lost its map (2.77 m). So off by default: for logs with people walking
     # close to the robot, at fine steps
+    local_check_rad: float = 0.0  # local_map=map: a node whose online-map match turns it more than half this (rad) away from
+    # the odometry's turn is matched again on the older active submap (recent scans only); where the two matches differ
+    # in yaw by more than this, the odometry's turn is nearer the submap's, and the recent scans fit the scan clearly
+    # better than the online map does (slam/graph/local.py, LocalSlam._checked), the node moves by the submap's match
+    # (0 = off). Why: returning to a place mapped long ago, before the loop closes, the online map holds that place where
+    # the drifted estimate put it then, and local SLAM can be turned by it: the hospital log at 1.0 m steps turned 45
+    # degrees in 25 s at the return to its lobby (4368-4394 s) and its right wing stayed ~10 degrees turned (p10 0.503).
+    # 0.03 measured (2026-12-03, benchmarks/RESULTS.md): the hospital at 1.0 / 0.5 m steps p10 0.503 -> 0.632, 0.589 ->
+    # 0.607 (0.25 and 0.75: no node taken, the same bytes); Intel at six steps, sim_loops and the corridor probes no node
+    # taken (the same bytes); but ACES at 0.35 m steps smoothed 0.0369 -> 0.0402 m (one node taken), 0.15 m 0.0367 ->
+    # 0.0372. So off by default: for a log whose map shows a wing turned after a return to an open hall
     redraw_m: float = 0.15  # local_map=map: when the graph puts the robot this far (m) or redraw_rad from where the
     redraw_rad: float = 0.035  # local map has it, the map is drawn again from the graph (the online pose jumps to the graph's).
     # 0.15 against 0.3 (bench_graph.py, 2026-11-29): ACES worst causal 0.0399 / 0.0382 m at 0.5 / 0.25 m steps (0.0417 /
@@ -465,7 +476,7 @@ class GraphFilterConfig:
         for name in ("search_resolution_m", "window_max_m", "ambiguity_m", "ambiguity_rad", "loop_sigma_m", "loop_sigma_rad", "trust_m", "trust_rad", "redraw_m", "redraw_rad",
                      "local_sigma_m", "local_sigma_rad", "loss_scale", "prune_m", "prune_rad", "consistency_m", "consistency_rad"):
             require_positive(g, name, getattr(self, name))
-        for name in ("near_hits_m", "yaw_drift_gain_per_m", "local_yaw_half_width_rad", "screen_resolution_m", "window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "query_m", "loop_min_path_m", "group_extent_m", "group_span_m",
+        for name in ("near_hits_m", "local_check_rad", "yaw_drift_gain_per_m", "local_yaw_half_width_rad", "screen_resolution_m", "window_m", "window_per_m", "window_yaw_rad", "window_yaw_per_m", "query_m", "loop_min_path_m", "group_extent_m", "group_span_m",
                      "consistency_per_m", "consistency_rad_per_m", "local_sigma_per_m", "local_sigma_per_rad", "local_sigma_along_per_m", "local_slip_per_m"):
             require_nonnegative(g, name, getattr(self, name))
         for name in ("min_score", "min_refined_score", "ambiguity_ratio"):

@@ -7,7 +7,10 @@ motion prior) moves it to where the scan fits the local map (`filter.local_map`)
   after a loop closure and an optimisation, so the online pose does not drift between
   closures (measured: `conf/filter/graph.yaml`). When the graph puts the robot far from where
   this map has it (a long loop closed), the map is drawn again from every node's optimised
-  pose (`redraw`) and the online pose becomes the graph's.
+  pose (`redraw`) and the online pose becomes the graph's. The same holds a place mapped long
+  ago, before its loop closed, where the drifted estimate put it then, and a return there can
+  turn the robot: with `filter.local_check_rad` > 0 a node whose match turns it away from the
+  odometry is matched once more on the last submap alone (`LocalSlam._checked`).
 - `submap`: the older of the two active submaps (Cartographer's local SLAM); the online pose
   is then the graph's estimate of the newest node.
 The matched motion between consecutive nodes is the pose graph's local edge, and the chain
@@ -30,7 +33,7 @@ from slamlab.slam.graph.loops import match_covariance
 from slamlab.slam.graph.small_linalg import from_eig, sym_eig
 from slamlab.slam.graph.submaps import FinishedSubmap, Submaps
 from slamlab.slam.grid import MapSettings, OccupancyGrid
-from slamlab.slam.matcher import LikelihoodFieldMatcher, MatchPoints, voxel_filter
+from slamlab.slam.matcher import LikelihoodFieldMatcher, MatchPoints, score_field, voxel_filter
 from slamlab.slam.odometry_scale import learn_scales, scaled_start
 from slamlab.slam.odometry_yaw import learn_yaw_drift
 from slamlab.slam.scan import ScanBatch, ScanPoints, place, points_to_world
@@ -94,13 +97,27 @@ def reach_of(body_xy: FloatArray) -> float:
     return float(np.sqrt((body_xy ** 2).sum(axis=1).max())) if len(body_xy) else 0.0
 
 
+CHECK_FIT = 0.1  # `LocalSlam._checked`: how much better (mean field value, 0..1) the recent scans must fit their own match
+
+
+def _mean_fit(grid: OccupancyGrid, pose: FloatArray, pts: FloatArray) -> float:
+    """The mean likelihood-field value (0..1) of the points `pts` (body frame, m) at `pose` on `grid`."""
+    if not len(pts):
+        return 0.0
+    return float(score_field(grid.field_cells, float(grid.origin[0]), float(grid.origin[1]), 1.0 / grid.res, float(pose[0]), float(pose[1]),
+                             float(pose[2]), pts)) / len(pts)
+
+
 class LocalSlam:
     """The chain poses, the submaps and (local_map=map) the online map (see module doc)."""
 
     def __init__(self, matcher: LikelihoodFieldMatcher, settings: MapSettings, submaps: Submaps, local_map: str,
                  start: FloatArray, scale_gain_per_m: float = 0.0, step_matcher: LikelihoodFieldMatcher | None = None,
-                 walls_at_hits: bool = False, near_hits_m: float = 0.0, yaw_drift_gain_per_m: float = 0.0) -> None:
+                 walls_at_hits: bool = False, near_hits_m: float = 0.0, yaw_drift_gain_per_m: float = 0.0,
+                 check_rad: float = 0.0) -> None:
         self.matcher = matcher
+        self.check_rad = float(check_rad)  # `filter.local_check_rad`: 0 = the online map's match alone
+        self.checks_taken = 0  # nodes whose motion came from the submap's match (`step`)
         self.yaw_drift_gain_per_m = float(yaw_drift_gain_per_m)  # `filter.yaw_drift_gain_per_m`: 0 = the odometry's turns as they are
         self.yaw_drift = 0.0  # the learnt odometry yaw drift (rad per metre; `slam.odometry_yaw`)
         self.near_hits_m = float(near_hits_m)  # the online map leaves out hits this near the lidar (`filter.near_hits_m`)
@@ -159,6 +176,8 @@ class LocalSlam:
         matches = grid is not None and len(scan.xy) > 0  # a map to match on and points to match: the learnt models learn only then
         matched = self._match(grid, predicted, scan) if matches else predicted
         before = self.online if self.grid is not None else self.chain
+        if matches and self.grid is not None and self.check_rad > 0 and self.submaps.active:
+            matched = self._checked(before, predicted, matched, scan)
         if self.scale_gain_per_m > 0 and matches:
             self.scale = learn_scales(self.scale, before.reshape(1, 3), matched.reshape(1, 3), odometry_increment, self.scale_gain_per_m)
         motion = se2_between(before, matched)
@@ -170,6 +189,32 @@ class LocalSlam:
         else:
             self.chain = self.online = matched
         return motion
+
+    def _checked(self, before: FloatArray, predicted: FloatArray, matched: FloatArray, scan: ScanPoints) -> FloatArray:
+        """The online map's match `matched` of the node predicted at `predicted` (from
+        `before`), checked against the same scan matched on the older active submap (recent
+        scans only, in the chain's frame; `filter.local_check_rad`). The submap's motion is
+        taken instead when the two differ in yaw by more than `check_rad`, the odometry's turn
+        is nearer the submap's, and the recent scans fit the scan clearly better (by CHECK_FIT
+        of the mean field value) at their own match than at the online map's motion and than
+        the online map fits it at its match: the online map there is not what the robot sees now."""
+        by_map = se2_between(before, matched)
+        turn = float(se2_between(before, predicted)[2])  # the odometry's
+        off_map = abs(float(wrap_angle(by_map[2] - turn)))
+        if off_map <= self.check_rad / 2:
+            return matched  # the submap's could differ by check_rad only by being farther from the odometry: not needed
+        grid = self.submaps.matching().grid
+        if grid.field is None:  # local_map=map draws the submaps' fields when they are finished: this one's now
+            grid.start_field(self.submaps.sigma, self.submaps.radius)
+        by_submap = se2_between(self.chain, self._match(grid, se2_compose(self.chain, se2_between(before, predicted)), scan))
+        if abs(float(wrap_angle(by_map[2] - by_submap[2]))) <= self.check_rad or off_map <= abs(float(wrap_angle(by_submap[2] - turn))):
+            return matched
+        pts = np.ascontiguousarray(self.matcher.fine_points(scan), dtype=np.float64)
+        sub_own = _mean_fit(grid, se2_compose(self.chain, by_submap), pts)
+        if sub_own - _mean_fit(grid, se2_compose(self.chain, by_map), pts) <= CHECK_FIT or sub_own - _mean_fit(self.grid, matched, pts) <= CHECK_FIT:
+            return matched
+        self.checks_taken += 1
+        return se2_compose(before, by_submap)
 
     def slack(self, scan: ScanPoints, step_m: float, slip_per_m: float) -> FloatArray:
         """(3, 3) what the newest node's match did not pin, for its local edge (node frame):
