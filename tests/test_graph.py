@@ -1135,17 +1135,14 @@ def _room_scan() -> np.ndarray:
                            np.stack([-1.0 + 4.0 * t[:61], np.full(61, -1.5)], axis=1), np.stack([np.full(21, -1.0), 1.0 + t[:21]], axis=1)])
 
 
-@pytest.mark.parametrize(("turn", "check_rad", "recent", "taken"), [
-    (0.0, 0.0, "room", 0), (0.0, 0.1, "room", 1), (0.12, 0.1, "room", 0), (0.0, 0.2, "room", 0), (0.0, 0.1, "far wall", 0),
-])  # fmt: skip
-def test_a_node_turned_by_an_old_misplaced_map_keeps_the_recent_submaps_motion_when_they_clearly_fit_and_the_odometry_agrees(
-        turn, check_rad, recent, taken):
-    # The online map holds two of the room's walls 0.12 rad turned (a place mapped long ago, before the loop closed,
-    # where the drifted estimate put it then); the submap (recent scans) holds the room as the robot sees it now. The robot stands
-    # still (or, in the third case, the odometry says it turned 0.12 rad): the online map's match turns it 0.12 rad.
-    # In the last case the recent scans saw only the end wall: they fit the scan no better than the online map
-    # does, and the online map's match stands.
-    from slamlab.geometry import se2_compose
+ROBOT_CHAIN = np.array([2.0, 1.0, 0.3])  # the node before, in the submaps' frame ...
+ROBOT_ONLINE = np.array([7.0, -3.0, 1.1])  # ... and on the online map, redrawn in another frame since
+
+
+def _misplaced_room(check_rad: float, recent: str = "room"):
+    """A LocalSlam whose online map holds two of the room's walls 0.12 rad turned about the robot (a place mapped
+    long ago, before its loop closed, where the drifted estimate put it then) and whose submap holds the room as
+    the recent scans saw it, -0.04 rad turned (`recent`: "room", or "far wall": the end wall alone); and the scan."""
     from slamlab.slam.graph.local import LocalSlam
     from slamlab.slam.graph.submaps import Submaps
     from slamlab.slam.grid import MapSettings
@@ -1155,19 +1152,58 @@ def test_a_node_turned_by_an_old_misplaced_map_keeps_the_recent_submaps_motion_w
     scan = ScanPoints(xy=_room_scan(), origin=np.zeros(2))
     matcher, ms = LikelihoodFieldMatcher(), MapSettings()
     submaps = Submaps(ms, 20, matcher.field_sigma_m, matcher.field_radius_m, field_when_finished=True)
-    local = LocalSlam(matcher, ms, submaps, "map", np.zeros(3), step_matcher=matcher.with_yaw_window(0.2), check_rad=check_rad)
-    old = np.array([0.0, 0.0, 0.12])
+    local = LocalSlam(matcher, ms, submaps, "map", ROBOT_CHAIN, step_matcher=matcher.with_yaw_window(0.2), check_rad=check_rad)
+    local.online = ROBOT_ONLINE.copy()
+    old = se2_compose(ROBOT_ONLINE, np.array([0.0, 0.0, 0.12]))
     for _ in range(3):
-        local.grid.insert(np.zeros(2), points_to_world(scan.xy[:162], old))
-    seen = scan if recent == "room" else ScanPoints(xy=scan.xy[:81], origin=np.zeros(2))
-    submaps.insert(0, np.zeros(3), seen)
+        local.grid.insert(points_to_world(np.zeros((1, 2)), ROBOT_ONLINE)[0], points_to_world(scan.xy[:162], old))
+    submaps.insert(0, se2_compose(ROBOT_CHAIN, np.array([0.0, 0.0, -0.04])), scan if recent == "room" else ScanPoints(xy=scan.xy[:81], origin=np.zeros(2)))
+    return local, scan
+
+
+@pytest.mark.parametrize(("turn", "check_rad", "recent", "taken"), [
+    (0.0, 0.0, "room", 0), (0.0, 0.1, "room", 1), (0.12, 0.1, "room", 0), (0.0, 0.2, "room", 0), (0.08, 0.07, "room", 0),
+    (0.0, 0.1, "far wall", 0),
+])  # fmt: skip
+def test_a_node_turned_by_an_old_misplaced_map_keeps_the_recent_submaps_motion_when_they_clearly_fit_and_the_odometry_agrees(
+        turn, check_rad, recent, taken):
+    # The robot stands still (third case: the odometry says it turned 0.12 rad, as the online map's match does; fifth:
+    # 0.08 rad, nearer the online map's 0.12 than the submap's -0.04): the online map's match turns it 0.12 rad, the
+    # submap's -0.04. Off (0), within the tolerance (0.2) or where the odometry sides with the online map, its
+    # match stands. In the last case the recent scans saw only the end wall: they fit the scan no better than the
+    # online map does, and the online map's match stands.
+    local, scan = _misplaced_room(check_rad, recent)
     motion = local.step(np.array([0.0, 0.0, turn]), scan)
     assert local.checks_taken == taken
-    by_map = abs(float(motion[2]) - 0.12) < 0.02
-    assert by_map == (taken == 0)  # the map's turn, or the submap's (none: the odometry's stand-still)
-    if taken:
-        assert abs(float(motion[2])) < 0.02 and np.allclose(local.online, se2_compose(np.zeros(3), motion))
-    from slamlab.config.slam import GraphFilterConfig  # a negative tolerance is the user's mistake, named
+    assert abs(float(motion[2]) - (-0.04 if taken else 0.12)) < 0.015  # the submap's turn or the online map's
+    # both frames move by the one motion: the online pose on the online map, the chain pose in the submaps' frame
+    assert np.allclose(local.online, se2_compose(ROBOT_ONLINE, motion)) and np.allclose(local.chain, se2_compose(ROBOT_CHAIN, motion))
+
+
+@pytest.mark.parametrize(("submap_at_map_motion", "online_fit", "taken"), [(0.2, 0.2, 1), (0.85, 0.2, 0), (0.2, 0.85, 0)])
+def test_the_submaps_motion_is_taken_only_where_the_recent_scans_clearly_fit_it_better(monkeypatch, submap_at_map_motion, online_fit, taken):
+    # The fits stubbed: the recent scans fit 0.9 at their own match and `submap_at_map_motion` at the online map's
+    # motion; the online map fits `online_fit` at its match. Both margins must exceed CHECK_FIT (0.1).
+    from slamlab.slam.graph import local as local_module
+
+    local, scan = _misplaced_room(0.1)
+    submap_grid = local.submaps.matching().grid
+
+    def fit(grid, pose, pts):
+        if grid is submap_grid:  # its own match turns the chain's yaw -0.04; the online map's motion 0.12
+            return 0.9 if abs(float(pose[2]) - ROBOT_CHAIN[2]) < 0.06 else submap_at_map_motion
+        return online_fit
+
+    monkeypatch.setattr(local_module, "_mean_fit", fit)
+    local.step(np.zeros(3), scan)
+    assert local.checks_taken == taken
+
+
+def test_the_local_check_is_a_setting_of_local_slam_on_the_map_of_everything():
+    from slamlab.config.slam import GraphFilterConfig  # the user's mistakes, named
 
     with pytest.raises(ConfigError, match="filter.local_check_rad"):
         GraphFilterConfig(local_check_rad=-0.1)
+    with pytest.raises(ConfigError, match="filter.local_check_rad.*local_map=submap"):
+        GraphFilterConfig(local_check_rad=0.03, local_map="submap")
+    assert GraphFilterConfig(local_check_rad=0.03).local_check_rad == 0.03

@@ -85,10 +85,11 @@ def test_unknown_keys_still_get_the_composed_message():
 @pytest.mark.parametrize(("argv", "sweep"), [
     (["-m", "particles=1,2"], True), (["--multirun", "seed=1"], True), (["--multi", "seed=1"], True), (["--m"], True),
     (["-mc", "job"], True), (["-cn", "config", "-m"], True), (["hydra.run.dir=out", "seed=-m"], False), (["seed=1"], False),
-    (["-c", "nonesuch"], False),  # refused by Hydra's parser: Hydra reports it, no sweep here
+    (["-c", "nonesuch"], False), (["--c"], False), (["-m", "--version"], False),  # refused or answered by Hydra's parser: no sweep
 ])  # fmt: skip
-def test_a_sweep_flag_is_read_as_hydras_parser_reads_it(argv, sweep):
+def test_a_sweep_flag_is_read_as_hydras_parser_reads_it(argv, sweep, capsys):
     assert multirun_flag(argv) is sweep
+    assert capsys.readouterr() == ("", "")  # a yes-or-no question: Hydra itself says what is wrong, once
 
 
 def test_a_sweep_by_any_flag_spelling_claims_no_run_folder(tmp_path):

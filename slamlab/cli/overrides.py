@@ -13,7 +13,9 @@ module is sure of are reported; anything else is left to Hydra's own messages.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import difflib
+import io
 import functools
 from importlib import resources
 
@@ -279,15 +281,17 @@ def _hydra_mode(data: dict) -> set[str]:
 def multirun_flag(argv: list[str]) -> bool:
     """Whether the command line asks for a sweep by flag, read by Hydra's own argument parser:
     argparse takes any unique prefix of `--multirun` (`--multi`, `--m`) and short flags joined
-    (`-mc job`) as `-m` too. A command line that parser refuses is no sweep here: Hydra reports
-    it when it starts."""
+    (`-mc job`) as `-m` too. It reads the flags it knows and leaves the rest, as Hydra reads them;
+    a command line it refuses or that only asks for output (an ambiguous prefix such as `--c`,
+    `--version`) is no sweep here, silently: Hydra reports or answers it when it starts."""
     from hydra._internal.utils import get_args_parser  # Hydra's parser, so the two cannot disagree
 
     parser = get_args_parser()
     parser.exit_on_error = False
     try:
-        args, _ = parser.parse_known_args(argv)
-    except argparse.ArgumentError:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            args, _ = parser.parse_known_args(argv)
+    except (argparse.ArgumentError, SystemExit):  # argparse still exits on some mistakes, and on --version
         return False
     return bool(args.multirun)
 

@@ -354,7 +354,8 @@ class GraphFilterConfig:
     local_check_rad: float = 0.0  # local_map=map: a node whose online-map match turns it more than half this (rad) away from
     # the odometry's turn is matched again on the older active submap (recent scans only); where the two matches differ
     # in yaw by more than this, the odometry's turn is nearer the submap's, and the recent scans fit the scan clearly
-    # better than the online map does (slam/graph/local.py, LocalSlam._checked), the node moves by the submap's match
+    # better at their own match than both at the online map's motion and than the online map fits it (slam/graph/local.py,
+    # LocalSlam._checked), the node moves by the submap's match
     # (0 = off). Why: returning to a place mapped long ago, before the loop closes, the online map holds that place where
     # the drifted estimate put it then, and local SLAM can be turned by it: the hospital log at 1.0 m steps turned 45
     # degrees in 25 s at the return to its lobby (4368-4394 s) and its right wing stayed ~10 degrees turned (p10 0.503).
@@ -485,6 +486,8 @@ class GraphFilterConfig:
         require_choice(g, "local_map", self.local_map, ("map", "submap", "particles"))
         if self.yaw_drift_gain_per_m > 0 and self.local_map == "particles":  # each particle keeps its own motion model there
             raise ConfigError(f"{g}.yaw_drift_gain_per_m", "is for local_map=map or submap; local_map=particles learns no yaw drift")
+        if self.local_check_rad > 0 and self.local_map != "map":  # it checks a match on the map of everything against the submap's
+            raise ConfigError(f"{g}.local_check_rad", f"is for local_map=map; local_map={self.local_map} matches on the submap (or particles) alone")
         require_choice(g, "wall_at", self.wall_at, ("centre", "hits"))
         require_choice(g, "redraw_frame", self.redraw_frame, ("graph", "online"))
         require_bool(g, "final_match", self.final_match)

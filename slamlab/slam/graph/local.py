@@ -10,7 +10,7 @@ motion prior) moves it to where the scan fits the local map (`filter.local_map`)
   pose (`redraw`) and the online pose becomes the graph's. The same holds a place mapped long
   ago, before its loop closed, where the drifted estimate put it then, and a return there can
   turn the robot: with `filter.local_check_rad` > 0 a node whose match turns it away from the
-  odometry is matched once more on the last submap alone (`LocalSlam._checked`).
+  odometry is matched once more on the older active submap alone (`LocalSlam._checked`).
 - `submap`: the older of the two active submaps (Cartographer's local SLAM); the online pose
   is then the graph's estimate of the newest node.
 The matched motion between consecutive nodes is the pose graph's local edge, and the chain
