@@ -15,8 +15,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import difflib
-import io
 import functools
+import io
 from importlib import resources
 
 # Options that point Hydra at another config (slamlab-verify's re-run): not our groups and keys.

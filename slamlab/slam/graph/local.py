@@ -199,14 +199,15 @@ class LocalSlam:
         of the mean field value) at their own match than at the online map's motion and than
         the online map fits it at its match: the online map there is not what the robot sees now."""
         by_map = se2_between(before, matched)
-        turn = float(se2_between(before, predicted)[2])  # the odometry's
+        by_odometry = se2_between(before, predicted)
+        turn = float(by_odometry[2])
         off_map = abs(float(wrap_angle(by_map[2] - turn)))
         if off_map <= self.check_rad / 2:
             return matched  # the submap's could differ by check_rad only by being farther from the odometry: not needed
         grid = self.submaps.matching().grid
         if grid.field is None:  # local_map=map draws the submaps' fields when they are finished: this one's now
             grid.start_field(self.submaps.sigma, self.submaps.radius)
-        by_submap = se2_between(self.chain, self._match(grid, se2_compose(self.chain, se2_between(before, predicted)), scan))
+        by_submap = se2_between(self.chain, self._match(grid, se2_compose(self.chain, by_odometry), scan))
         if abs(float(wrap_angle(by_map[2] - by_submap[2]))) <= self.check_rad or off_map <= abs(float(wrap_angle(by_submap[2] - turn))):
             return matched
         pts = np.ascontiguousarray(self.matcher.fine_points(scan), dtype=np.float64)
