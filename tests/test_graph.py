@@ -1199,11 +1199,14 @@ def test_the_submaps_motion_is_taken_only_where_the_recent_scans_clearly_fit_it_
     assert local.checks_taken == taken
 
 
-def test_the_local_check_is_a_setting_of_local_slam_on_the_map_of_everything():
+def test_the_local_check_is_on_by_default_and_read_only_on_the_map_of_everything(loop_log):
     from slamlab.config.slam import GraphFilterConfig  # the user's mistakes, named
 
     with pytest.raises(ConfigError, match="filter.local_check_rad"):
         GraphFilterConfig(local_check_rad=-0.1)
-    with pytest.raises(ConfigError, match="filter.local_check_rad.*local_map=submap"):
-        GraphFilterConfig(local_check_rad=0.03, local_map="submap")
-    assert GraphFilterConfig(local_check_rad=0.03).local_check_rad == 0.03
+    assert GraphFilterConfig().local_check_rad == 0.03
+    # the other local maps have no online map to check: the default is accepted there and not read
+    assert GraphFilterConfig(local_map="submap").local_check_rad == 0.03
+    assert "local_checks_taken" in _run(loop_log, "steps.max_scans=300").extras["graph"]
+    assert "local_checks_taken" not in _run(loop_log, "steps.max_scans=300", "filter.local_map=submap").extras["graph"]
+    assert "local_checks_taken" not in _run(loop_log, "steps.max_scans=300", "filter.local_check_rad=0").extras["graph"]

@@ -351,18 +351,20 @@ class GraphFilterConfig:
     # online path worse at 0.15, 0.35 and 0.75 m steps (causal 0.022 -> 0.041, 0.020 -> 0.056, 0.053 -> 0.073); at 0.5
     # Intel is as before but a people probe lost its map (2.77 m). So off by default: for logs with people walking
     # close to the robot, at fine steps
-    local_check_rad: float = 0.0  # local_map=map: a node whose online-map match turns it more than half this (rad) away from
-    # the odometry's turn is matched again on the older active submap (recent scans only); where the two matches differ
-    # in yaw by more than this, the odometry's turn is nearer the submap's, and the recent scans fit the scan clearly
-    # better at their own match than both at the online map's motion and than the online map fits it (slam/graph/local.py,
-    # LocalSlam._checked), the node moves by the submap's match
-    # (0 = off). Why: returning to a place mapped long ago, before the loop closes, the online map holds that place where
-    # the drifted estimate put it then, and local SLAM can be turned by it: the hospital log at 1.0 m steps turned 45
-    # degrees in 25 s at the return to its lobby (4368-4394 s) and its right wing stayed ~10 degrees turned (p10 0.503).
-    # 0.03 measured (2026-12-03, benchmarks/RESULTS.md): the hospital at 1.0 / 0.5 m steps p10 0.503 -> 0.632, 0.589 ->
-    # 0.607 (0.25 and 0.75: no node taken, the same bytes); Intel at six steps, sim_loops and the corridor probes no node
-    # taken (the same bytes); but ACES at 0.35 m steps smoothed 0.0369 -> 0.0402 m (one node taken), 0.15 m 0.0367 ->
-    # 0.0372. So off by default: for a log whose map shows a wing turned after a return to an open hall
+    local_check_rad: float = 0.03  # local_map=map (not read with the others): a node whose online-map match turns it more
+    # than half this (rad) away from the odometry's turn is matched again on the older active submap (recent scans only);
+    # where the two matches differ in yaw by more than this, the odometry's turn is nearer the submap's, and the recent
+    # scans fit the scan clearly better at their own match than both at the online map's motion and than the online map
+    # fits it (slam/graph/local.py, LocalSlam._checked), the node moves by the submap's match (0 = off). Why: returning to
+    # a place mapped long ago, before the loop closes, the online map holds that place where the drifted estimate put it
+    # then, and local SLAM can be turned by it: the hospital log at 1.0 m steps turned 45 degrees in 25 s at the return to
+    # its lobby (4368-4394 s) and its right wing stayed ~10 degrees turned (p10 0.503). 0.03 against off (2026-12-03,
+    # benchmarks/RESULTS.md): the hospital at 1.0 / 0.5 / 0.35 / 1.5 m steps p10 0.503 -> 0.632, 0.589 -> 0.607, 0.583 ->
+    # 0.591, 0.525 -> 0.517 (0.25, 0.75, 1.1, 1.25: no node taken, the same); Intel at six steps (18 runs), sim_loops and
+    # the corridor probes: no node taken, the same bytes; the campus probe at 0.5 m steps two runs of eight take nodes,
+    # smoothed 0.0308 -> 0.0289 and 0.0298 -> 0.0288 m; ACES at the preset's steps and half (jittered) the same, but at
+    # 0.35 m steps smoothed 0.0369 -> 0.0402 m (one node taken) and at 0.15 m 0.0367 -> 0.0372. On since 2026-12-03: a
+    # wing left turned is a broken map, 3 mm on ACES at one step is not
     redraw_m: float = 0.15  # local_map=map: when the graph puts the robot this far (m) or redraw_rad from where the
     redraw_rad: float = 0.035  # local map has it, the map is drawn again from the graph (the online pose jumps to the graph's).
     # 0.15 against 0.3 (bench_graph.py, 2026-11-29): ACES worst causal 0.0399 / 0.0382 m at 0.5 / 0.25 m steps (0.0417 /
@@ -486,8 +488,6 @@ class GraphFilterConfig:
         require_choice(g, "local_map", self.local_map, ("map", "submap", "particles"))
         if self.yaw_drift_gain_per_m > 0 and self.local_map == "particles":  # each particle keeps its own motion model there
             raise ConfigError(f"{g}.yaw_drift_gain_per_m", "is for local_map=map or submap; local_map=particles learns no yaw drift")
-        if self.local_check_rad > 0 and self.local_map != "map":  # it checks a match on the map of everything against the submap's
-            raise ConfigError(f"{g}.local_check_rad", f"is for local_map=map; local_map={self.local_map} matches on the submap (or particles) alone")
         require_choice(g, "wall_at", self.wall_at, ("centre", "hits"))
         require_choice(g, "redraw_frame", self.redraw_frame, ("graph", "online"))
         require_bool(g, "final_match", self.final_match)

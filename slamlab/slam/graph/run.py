@@ -275,7 +275,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
                 "optimise_s": float(sum(o.seconds for o in graph.optimisations)),
                 "update_s": float(graph.update_seconds),
                 "redraws": int(tracker.redraws),
-                **({"local_checks_taken": int(tracker.checks_taken)} if s.local_check_rad > 0 else {}),  # local_map=map: the config refuses others
+                **({"local_checks_taken": int(tracker.checks_taken)} if s.local_check_rad > 0 and s.local_map == "map" else {}),
                 **({"yaw_drift_rad_per_m": float(tracker.yaw_drift)} if s.yaw_drift_gain_per_m > 0 else {}),
                 "largest_correction_m": float(max([o.moved_max_m for o in graph.optimisations if not o.taken_back], default=0.0)),
                 "final_optimise_s": final_s,
