@@ -1210,3 +1210,54 @@ def test_the_local_check_is_on_by_default_and_read_only_on_the_map_of_everything
     assert "local_checks_taken" in _run(loop_log, "steps.max_scans=300").extras["graph"]
     assert "local_checks_taken" not in _run(loop_log, "steps.max_scans=300", "filter.local_map=submap").extras["graph"]
     assert "local_checks_taken" not in _run(loop_log, "steps.max_scans=300", "filter.local_check_rad=0").extras["graph"]
+    assert "local_turns_held" in _run(loop_log, "steps.max_scans=300").extras["graph"]  # on by default too (`_held`)
+    assert "local_turns_held" not in _run(loop_log, "steps.max_scans=300", "filter.local_weak_fit=0").extras["graph"]
+
+
+@pytest.mark.parametrize(("turn", "weak_fit", "held"), [(0.0, 0.0, False), (0.0, 0.99, True), (0.0, 0.05, False), (0.1, 0.99, False)])
+def test_a_large_turn_from_a_poor_fit_keeps_the_odometrys_yaw(turn, weak_fit, held):
+    # The online map's match turns the robot 0.12 rad (it holds two of the room's walls turned so). The odometry says
+    # `turn`. Where that is more than 0.07 rad from the match and the scan fits the online map below `weak_fit` at
+    # the match, the node keeps the odometry's yaw, its x and y matched with the yaw held; otherwise the match stands
+    # (off, a fit above the bar, or an odometry turn near the match's).
+    local, scan = _misplaced_room(0.0)
+    local.weak_fit = weak_fit
+    local._turn_gaps = [0.003] * 20  # twenty nodes before, each within 0.003 rad of the odometry's turn
+    motion = local.step(np.array([0.0, 0.0, turn]), scan)
+    assert local.turns_held == int(held)
+    if held:
+        assert abs(float(motion[2]) - turn) < 1e-6  # the yaw exactly the odometry's: no yaw search, no turn in the refinement
+    else:
+        assert abs(float(motion[2]) - 0.12) < 0.015
+
+
+def test_the_held_yaw_is_taken_only_below_the_fit_bar(monkeypatch):
+    from slamlab.slam.graph import local as local_module
+
+    local, scan = _misplaced_room(0.0)
+    local.weak_fit, local._turn_gaps = 0.5, [0.003] * 20
+    monkeypatch.setattr(local_module, "_mean_fit", lambda grid, pose, pts: 0.5)  # at the bar: the match stands
+    assert abs(float(local.step(np.zeros(3), scan)[2]) - 0.12) < 0.015 and local.turns_held == 0
+    local, scan = _misplaced_room(0.0)
+    local.weak_fit, local._turn_gaps = 0.5, [0.003] * 20
+    monkeypatch.setattr(local_module, "_mean_fit", lambda grid, pose, pts: 0.49)
+    assert abs(float(local.step(np.zeros(3), scan)[2])) < 1e-6 and local.turns_held == 1
+
+
+@pytest.mark.parametrize(("gaps", "held"), [([0.003] * 20, True), ([0.003] * 19, False), ([0.02] * 20, False)])
+def test_the_odometrys_yaw_is_held_only_where_it_has_been_good(gaps, held):
+    # The match turns 0.12 rad from the odometry. Held after 20 nodes within 0.003 rad of theirs; not before 20 nodes
+    # have said how good the odometry is, nor where it has been off by 0.02 rad a node (0.12 is 6 times that, not 8).
+    local, scan = _misplaced_room(0.0)
+    local.weak_fit, local._turn_gaps = 0.99, list(gaps)
+    local.step(np.zeros(3), scan)
+    assert local.turns_held == int(held)
+
+
+def test_the_weak_fit_bar_is_a_fraction():
+    from slamlab.config.slam import GraphFilterConfig
+
+    for bad in (-0.1, 1.5):
+        with pytest.raises(ConfigError, match="filter.local_weak_fit"):
+            GraphFilterConfig(local_weak_fit=bad)
+    assert GraphFilterConfig().local_weak_fit == 0.5 and GraphFilterConfig(local_weak_fit=0).local_weak_fit == 0  # 0: off

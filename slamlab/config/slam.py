@@ -365,6 +365,18 @@ class GraphFilterConfig:
     # smoothed 0.0308 -> 0.0289 and 0.0298 -> 0.0288 m; ACES at the preset's steps and half (jittered) the same, but at
     # 0.35 m steps smoothed 0.0369 -> 0.0402 m (one node taken) and at 0.15 m 0.0367 -> 0.0372. On since 2026-12-03: a
     # wing left turned is a broken map, 3 mm on ACES at one step is not
+    local_weak_fit: float = 0.5  # local_map=map (not read with the others): a node whose online-map match turns it more than
+    # 0.07 rad and more than 8 times the median of the nodes before it (the odometry's own yaw noise, once 20 nodes tell it)
+    # away from the odometry's turn, while its scan fits the map there below this (mean field value, 0..1), keeps the
+    # odometry's yaw, its x and y matched as usual (slam/graph/local.py, LocalSlam._held; 0 = off). Why: the hospital log
+    # at 1.25 m steps turned 10.6 degrees past its odometry's turn in its lobby at a fit of 0.075 (its odometry is within
+    # 0.2 degrees of the matches a node in the median); the turn stayed in the path and the return to the start fell
+    # outside the loop search's windows (its end 165 m from its start). Measured 2026-12-03 (benchmarks/RESULTS.md): the
+    # hospital at eight step sizes 0.25-1.5 m closes its start-return loop at every one (1.25 m: 165 -> 2.0 m from the
+    # start) and the runs agree better with each other (1.25 m 39.6 -> 2.5 m rms from the 0.5 m run; 1.0 m 6.0 -> 1.4,
+    # 0.25 m 4.6 -> 2.0; 1.5 m 2.6 -> 4.9 worse); Intel at six step sizes (18 runs) and the 40-run corridor probe matrix
+    # hold no turn (the same bytes); ACES holds one or two in 7 of 18 runs: worst smoothed within 1 mm at the preset's
+    # steps and half (0.0359 / 0.0363), 0.35 m 0.0402 -> 0.0411, and one causal 0.063 -> 0.100 m (0.98 m steps)
     redraw_m: float = 0.15  # local_map=map: when the graph puts the robot this far (m) or redraw_rad from where the
     redraw_rad: float = 0.035  # local map has it, the map is drawn again from the graph (the online pose jumps to the graph's).
     # 0.15 against 0.3 (bench_graph.py, 2026-11-29): ACES worst causal 0.0399 / 0.0382 m at 0.5 / 0.25 m steps (0.0417 /
@@ -484,6 +496,8 @@ class GraphFilterConfig:
             require_nonnegative(g, name, getattr(self, name))
         for name in ("min_score", "min_refined_score", "ambiguity_ratio"):
             require_fraction(g, name, getattr(self, name))
+        if self.local_weak_fit != 0:  # 0 = off; else a mean field value
+            require_fraction(g, "local_weak_fit", self.local_weak_fit)
         require_choice(g, "loss", self.loss, ("cauchy", "huber", "none"))
         require_choice(g, "local_map", self.local_map, ("map", "submap", "particles"))
         if self.yaw_drift_gain_per_m > 0 and self.local_map == "particles":  # each particle keeps its own motion model there

@@ -97,7 +97,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
     else:
         wide = matcher.with_yaw_window(s.local_yaw_half_width_rad) if s.local_yaw_half_width_rad > matcher.yaw_half_width_rad else None
         tracker = LocalSlam(matcher, ms, submaps, s.local_map, start, c.motion.scale_gain_per_m, wide, s.wall_at == "hits", s.near_hits_m, s.yaw_drift_gain_per_m,
-                            s.local_check_rad)
+                            s.local_check_rad, s.local_weak_fit)
     give_back_library_pages("gtsam")  # its import's set-up code, run once (the optimiser reads ~12 of its 28 MB again)
     graph = PoseGraph(start, GraphNoise(s.local_sigma_m, s.local_sigma_per_m, s.local_sigma_rad, s.local_sigma_per_rad,
                                         s.loop_sigma_m, s.loop_sigma_rad, s.loss, s.loss_scale, s.local_sigma_along_per_m))
@@ -276,6 +276,7 @@ def run_graph(sequence: Sequence, c: Components, progress: Callable[[int, int], 
                 "update_s": float(graph.update_seconds),
                 "redraws": int(tracker.redraws),
                 **({"local_checks_taken": int(tracker.checks_taken)} if s.local_check_rad > 0 and s.local_map == "map" else {}),
+                **({"local_turns_held": int(tracker.turns_held)} if s.local_weak_fit > 0 and s.local_map == "map" else {}),
                 **({"yaw_drift_rad_per_m": float(tracker.yaw_drift)} if s.yaw_drift_gain_per_m > 0 else {}),
                 "largest_correction_m": float(max([o.moved_max_m for o in graph.optimisations if not o.taken_back], default=0.0)),
                 "final_optimise_s": final_s,
