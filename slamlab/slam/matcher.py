@@ -743,12 +743,12 @@ class LikelihoodFieldMatcher(Matcher):
         out.map_reads = 0
         return out
 
-    def with_yaw_step(self, yaw_step_rad: float) -> LikelihoodFieldMatcher:
-        """This matcher with its coarse grid's and its refinement's yaw step `yaw_step_rad`
-        (rad); a tiny step with a zero yaw window keeps every match at its predicted yaw."""
-        out = self.with_yaw_window(self.yaw_half_width_rad)
-        out.yaw_step_rad = float(yaw_step_rad)
-        out.offsets = offset_grid(self.xy_half_width_m, self.xy_step_m, out.yaw_half_width_rad, out.yaw_step_rad)
+    def with_yaw_held(self) -> LikelihoodFieldMatcher:
+        """This matcher matching x and y only: every match keeps its predicted yaw (no yaw in
+        the coarse grid, and a refinement yaw step of 1e-9 rad, too small to turn)."""
+        out = self.with_yaw_window(0.0)
+        out.yaw_step_rad = 1e-9
+        out.offsets = offset_grid(self.xy_half_width_m, self.xy_step_m, 0.0, out.yaw_step_rad)
         return out
 
     def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:

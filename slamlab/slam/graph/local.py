@@ -221,8 +221,8 @@ class LocalSlam:
         pts = np.ascontiguousarray(self.matcher.fine_points(scan), dtype=np.float64)
         if _mean_fit(self.grid, matched, pts) >= self.weak_fit:
             return matched
-        if self._yaw_held is None:  # no yaw search, and a refinement step too small to turn
-            self._yaw_held = self.step_matcher.with_yaw_window(0.0).with_yaw_step(1e-9)
+        if self._yaw_held is None:
+            self._yaw_held = self.step_matcher.with_yaw_held()
         self.turns_held += 1
         return self._yaw_held.match_scans_on(self.grid, predicted.reshape(1, 3), ScanBatch.of([scan]))[0][0]
 
