@@ -746,9 +746,8 @@ class LikelihoodFieldMatcher(Matcher):
     def with_yaw_held(self) -> LikelihoodFieldMatcher:
         """This matcher matching x and y only: every match keeps its predicted yaw (no yaw in
         the coarse grid, and a refinement yaw step of 1e-9 rad, too small to turn)."""
-        out = self.with_yaw_window(0.0)
+        out = self.with_yaw_window(0.0)  # its offsets: x and y only, whatever the yaw step
         out.yaw_step_rad = 1e-9
-        out.offsets = offset_grid(self.xy_half_width_m, self.xy_step_m, 0.0, out.yaw_step_rad)
         return out
 
     def match(self, grid: OccupancyGrid, poses: FloatArray, scan: ScanPoints) -> tuple[FloatArray, FloatArray]:

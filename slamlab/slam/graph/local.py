@@ -214,9 +214,10 @@ class LocalSlam:
         odometry is within 0.2 degrees of the matches a node in the median). Intel's odometry is
         1.6 degrees off a node in the median: there a turn of 4 degrees is the odometry's error."""
         gap = abs(float(wrap_angle(matched[2] - predicted[2])))
-        noise = float(np.median(self._turn_gaps)) if len(self._turn_gaps) >= WEAK_TURN_NODES else np.inf
-        self._turn_gaps.append(gap)
-        if gap <= WEAK_TURN_RAD or gap <= WEAK_TURN_TIMES * noise:
+        gaps = self._turn_gaps
+        small = gap <= WEAK_TURN_RAD or len(gaps) < WEAK_TURN_NODES or gap <= WEAK_TURN_TIMES * float(np.median(gaps))
+        gaps.append(gap)
+        if small:
             return matched
         pts = np.ascontiguousarray(self.matcher.fine_points(scan), dtype=np.float64)
         if _mean_fit(self.grid, matched, pts) >= self.weak_fit:
