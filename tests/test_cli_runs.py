@@ -25,13 +25,17 @@ def start(args: list[str], cwd: Path, cache: Path) -> subprocess.Popen:
     return slamlab_start(args, cwd, cache)
 
 
-def test_two_runs_started_together_into_one_folder(tmp_path, sim_cache):
+@pytest.mark.parametrize("interpolated", [False, True])
+def test_two_runs_started_together_into_one_folder(tmp_path, sim_cache, interpolated):
     # the sequence is generated once first, so both runs reach Hydra's start at the same moment
     warm = start([*QUICK, f"hydra.run.dir={tmp_path / 'warm'}"], tmp_path, sim_cache)
     assert warm.wait(timeout=600) == 0
     for attempt in range(3):
         folder = tmp_path / f"shared{attempt}"
-        procs = {seed: start([*QUICK, f"seed={seed}", f"hydra.run.dir={folder}"], tmp_path, sim_cache)
+        # a folder named by the config (`${...}`) is the same folder, and claimed as early
+        name = f"{folder}_${{dataset.duration_s}}" if interpolated else str(folder)
+        folder = Path(f"{folder}_20.0") if interpolated else folder  # the schema makes it a float
+        procs = {seed: start([*QUICK, f"seed={seed}", f"hydra.run.dir={name}"], tmp_path, sim_cache)
                  for seed in (1, 2)}
         results = {seed: (p.wait(timeout=600), p.stderr.read()) for seed, p in procs.items()}
         winners = [s for s, (rc, _) in results.items() if rc == 0]

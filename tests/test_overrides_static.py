@@ -8,7 +8,7 @@ import pytest
 from hydra import compose, initialize_config_module
 from omegaconf import OmegaConf
 
-from slamlab.cli.overrides import PRESET_GROUP, _dotted_keys, check_overrides, config_groups, hydra_mode_unset, multirun_flag, static_keys
+from slamlab.cli.overrides import PRESET_GROUP, _dotted_keys, check_overrides, config_groups, hydra_mode_unset, static_keys
 
 GROUPS = config_groups()
 CASES = (
@@ -82,24 +82,49 @@ def test_unknown_keys_still_get_the_composed_message():
     assert check_overrides(["+experiment=lidar2d", "dataset.on_bad_line=skip"]) is None
 
 
-@pytest.mark.parametrize(("argv", "sweep"), [
-    (["-m", "particles=1,2"], True), (["--multirun", "seed=1"], True), (["--multi", "seed=1"], True), (["--m"], True),
-    (["-mc", "job"], True), (["-cn", "config", "-m"], True), (["hydra.run.dir=out", "seed=-m"], False), (["seed=1"], False),
-    (["-c", "nonesuch"], False), (["--c"], False), (["-m", "--version"], False),  # refused or answered by Hydra's parser: no sweep
-])  # fmt: skip
-def test_a_sweep_flag_is_read_as_hydras_parser_reads_it(argv, sweep, capsys):
-    assert multirun_flag(argv) is sweep
-    assert capsys.readouterr() == ("", "")  # a yes-or-no question: Hydra itself says what is wrong, once
+def _run_config(overrides: list[str]):
+    with initialize_config_module(config_module="slamlab.conf", version_base="1.3"):
+        return compose(config_name="config", overrides=overrides, return_hydra_config=True)
 
 
-def test_a_sweep_by_any_flag_spelling_claims_no_run_folder(tmp_path):
-    from slamlab.cli import app
+def test_a_single_run_claims_the_folder_hydra_will_write_into(tmp_path):
+    import os
+
+    from slamlab.cli import app, run_claim
+    from slamlab.io.rundir import RunFile
+
+    # an interpolated name resolves as Hydra resolves it: no early reading of the command line could
+    cfg = _run_config([f"hydra.run.dir={tmp_path}/seed${{seed}}", "seed=3"])
+    run_claim.ClaimRunDirCallback().on_run_start(config=cfg)
+    folder = tmp_path / "seed3"
+    assert (folder / RunFile.CLAIM).read_text() == str(os.getpid())
+    assert cfg.hydra.run.dir == str(folder)
+    app._release_unused_claim()  # the run never started: the folder it made is given back
+    assert not folder.exists()
+
+
+def test_the_default_folder_is_named_once(tmp_path, monkeypatch):
+    from slamlab.cli import app, run_claim
+    from slamlab.io.rundir import RunFile
+
+    monkeypatch.chdir(tmp_path)
+    cfg = _run_config([])
+    assert "${now:" in OmegaConf.to_container(cfg.hydra.run)["dir"]  # microseconds: each reading names another folder
+    run_claim.ClaimRunDirCallback().on_run_start(config=cfg)
+    named = OmegaConf.to_container(cfg.hydra.run)["dir"]  # what Hydra's run_job reads after the callback
+    assert "${" not in named and (tmp_path / named / RunFile.CLAIM).exists()
+    app._release_unused_claim()
+
+
+def test_a_folder_another_run_holds_is_refused_before_hydra_writes_into_it(tmp_path, capsys):
+    from slamlab.cli import run_claim
     from slamlab.io.rundir import RunFile
 
     folder = tmp_path / "r"
-    assert app._claim_given_run_dir(["--multi", f"hydra.run.dir={folder}"]) is None
-    assert not folder.exists()
-    claimed = app._claim_given_run_dir([f"hydra.run.dir={folder}"])  # a single run claims it
-    assert claimed == (folder, True) and (folder / RunFile.CLAIM).exists()
-    app._release_unused_claim(claimed)
-    assert not folder.exists()
+    folder.mkdir()
+    (folder / RunFile.CLAIM).write_text("1")  # held by another process (pid 1)
+    with pytest.raises(SystemExit) as stop:
+        run_claim.ClaimRunDirCallback().on_run_start(config=_run_config([f"hydra.run.dir={folder}"]))
+    assert stop.value.code == 2
+    assert "already holds a run" in capsys.readouterr().err
+    assert not run_claim.CLAIMED and (folder / RunFile.CLAIM).read_text() == "1"

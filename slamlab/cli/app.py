@@ -24,14 +24,13 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 import slamlab.config.store  # noqa: F401  (the schemas the YAML files extend, whatever the config path: -cp, verify)
-from slamlab.cli.overrides import check_overrides, hydra_mode_unset, multirun_flag
+from slamlab.cli import run_claim
+from slamlab.cli.overrides import check_overrides, hydra_mode_unset
 from slamlab.code_pages import give_back_llvm_pages_after_loads, start_numba_runtime
 from slamlab.errors import SlamlabError
 from slamlab.interrupt import EXIT_INTERRUPTED, RunInterrupted
 from slamlab.io.rundir import RunFile
 from slamlab.pipeline import (
-    RunDirectoryInUse,
-    claim_run_dir,
     claimed_by_this_process,
     run_pipeline,
     user_error,
@@ -212,9 +211,6 @@ def _run_job(cfg: DictConfig, hc: Any, multirun: bool) -> None:
             sys.exit(2)
 
 
-# Folders that existed before this process claimed them (hydra.run.dir=DIR given, DIR there):
-# a run that never started gives them back, never removes them.
-_PRE_EXISTING: set[Path] = set()
 # What a run leaves in its folder before it produces anything (Hydra's record, the claim, the
 # failure's metrics.json and log): a folder holding only these held no run.
 _BEFORE_ANY_RESULT = frozenset({RunFile.HYDRA_DIR, RunFile.CLAIM, RunFile.METRICS, RunFile.LOG})
@@ -237,7 +233,7 @@ def _discard_unrun(run_dir: Path) -> bool:
     for name in names:
         path = run_dir / name
         shutil.rmtree(path, ignore_errors=True) if path.is_dir() else path.unlink(missing_ok=True)
-    if run_dir.resolve() not in _PRE_EXISTING:
+    if run_dir.resolve() not in run_claim.PRE_EXISTING:
         try:
             run_dir.rmdir()
             # the date folder Hydra made for it (outputs/DATE/), if the run was its only one
@@ -248,34 +244,12 @@ def _discard_unrun(run_dir: Path) -> bool:
     return True
 
 
-def _claim_given_run_dir(argv: list[str]) -> tuple[Path, bool] | None:
-    """Claim the folder of `hydra.run.dir=DIR` before Hydra starts: Hydra writes `.hydra/`
-    into it before the app runs, so a run refused later would already have overwritten the
-    other run's saved config. Returns (the folder, whether it was created here), or exits 2
-    if another run holds it."""
-    if multirun_flag(argv):
-        return None  # sweeps write into hydra.sweep.dir; every job claims its own folder
-    dirs = [arg.split("=", 1)[1] for arg in argv if arg.startswith("hydra.run.dir=")]
-    if not dirs or "${" in dirs[-1]:
-        return None  # the default folder has microseconds in its name; interpolations resolve later
-    run_dir = Path(dirs[-1])
-    created = not run_dir.exists()
-    if not created:
-        _PRE_EXISTING.add(run_dir.resolve())
-    run_dir.mkdir(parents=True, exist_ok=True)
-    try:
-        claim_run_dir(run_dir)
-    except RunDirectoryInUse as exc:
-        print(f"slamlab: {exc}", file=sys.stderr)
-        sys.exit(2)
-    return run_dir, created
-
-
-def _release_unused_claim(claimed: tuple[Path, bool] | None) -> None:
-    """Hydra stopped before the run started (a config error, --help, --cfg): give the folder back."""
-    if claimed is None:
+def _release_unused_claim() -> None:
+    """Hydra stopped before the run started (a config error found late, an error in Hydra's
+    own set-up): give the folder `run_claim` claimed back."""
+    if not run_claim.CLAIMED:
         return
-    run_dir, created = claimed
+    run_dir, created = run_claim.CLAIMED.pop()
     if (run_dir / RunFile.METRICS).exists() or not claimed_by_this_process(run_dir):
         return
     (run_dir / RunFile.CLAIM).unlink(missing_ok=True)
@@ -327,7 +301,6 @@ def main() -> None:
         sys.exit(2)
     if hydra_mode_unset(sys.argv[1:]):
         _skip_hydra_mode_compose()
-    claimed = _claim_given_run_dir(sys.argv[1:])
     try:
         _hydra_main()
         _exit_if_sweep_runs_failed()
@@ -338,7 +311,7 @@ def main() -> None:
         print(exc if isinstance(exc, RunInterrupted) else "interrupted", file=sys.stderr)
         sys.exit(EXIT_INTERRUPTED)
     finally:
-        _release_unused_claim(claimed)
+        _release_unused_claim()
         # The process ends here: without this, Python's last full collections at exit scan
         # every object the run imported or kept (0.6 s of CPU after a one-scan run). Frozen
         # objects are freed with the process instead; files are closed and logs flushed by

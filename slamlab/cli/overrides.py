@@ -12,11 +12,8 @@ module is sure of are reported; anything else is left to Hydra's own messages.
 
 from __future__ import annotations
 
-import argparse
-import contextlib
 import difflib
 import functools
-import io
 from importlib import resources
 
 # Options that point Hydra at another config (slamlab-verify's re-run): not our groups and keys.
@@ -276,24 +273,6 @@ def _hydra_mode(data: dict) -> set[str]:
     decides whether Hydra runs a job or a sweep (`hydra_mode_unset`)."""
     hydra = data.get("hydra")
     return {"hydra.mode"} if isinstance(hydra, dict) and "mode" in hydra else set()
-
-
-def multirun_flag(argv: list[str]) -> bool:
-    """Whether the command line asks for a sweep by flag, read by Hydra's own argument parser:
-    argparse takes any unique prefix of `--multirun` (`--multi`, `--m`) and short flags joined
-    (`-mc job`) as `-m` too. It reads the flags it knows and leaves the rest, as Hydra reads them;
-    a command line it refuses or that only asks for output (an ambiguous prefix such as `--c`,
-    `--version`) is no sweep here, silently: Hydra reports or answers it when it starts."""
-    from hydra._internal.utils import get_args_parser  # Hydra's parser, so the two cannot disagree
-
-    parser = get_args_parser()
-    parser.exit_on_error = False
-    try:
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-            args, _ = parser.parse_known_args(argv)
-    except (argparse.ArgumentError, SystemExit):  # argparse still exits on some mistakes, and on --version
-        return False
-    return bool(args.multirun)
 
 
 def hydra_mode_unset(argv: list[str]) -> bool:
