@@ -83,6 +83,8 @@ ROWS: dict[str, tuple[Callable[[], list[str]], float]] = {
     "sim": (lambda: [], 300.0),  # `make run`: the default sim run, texture and report
     "sim_loops": (lambda: ["+experiment=sim_loops", "texture=none", "report=false"], 500.0),  # world_scale 1.5
     "hospital": (lambda: ["+experiment=lidar2d", _log("fr-clinic_robotlaser.clf.bz2")], 400.0),  # with report
+    # the loop-closure issue's (43) row: the graph on the 2x building, texture and report as the preset makes them
+    "sim_loops_graph_2x": (lambda: ["+experiment=sim_loops", "filter=graph", "dataset.world_scale=2.0"], 600.0),
 }
 # not a slamlab run: the test suite as `make test` runs it (its largest process)
 MAKE_TEST_BUDGET_MB: float | None = None

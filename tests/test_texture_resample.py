@@ -61,3 +61,27 @@ def test_neighbour_contrast_is_that_of_the_float64_grid():
                                                                (c[1:], c[:-1], mask[1:] & mask[:-1]))]
     assert neighbour_contrast(colour, mask) == float(np.concatenate(pairs).mean()) > 50
     assert neighbour_contrast(c, mask) == neighbour_contrast(colour, mask)  # float64 colours (the truth's) too
+
+
+def test_the_accumulators_averages_are_numpys_to_the_bit():
+    # the one-pass `finish` against the array formula it replaced: half-way colours round to even,
+    # unobserved cells take the blank colour, the cloud lists observed cells in row-major order
+    rng = np.random.default_rng(3)
+    acc = texture_map.TextureAccumulator((40, 50), 0.05, (-1.0, -2.0))
+    world = np.c_[rng.uniform(-1.0, 1.5, 3000), rng.uniform(-2.0, 0.0, 3000), rng.normal(0.0, 0.01, 3000)].astype(np.float32)
+    colors = rng.integers(0, 256, (3000, 3), dtype=np.uint8)
+    colors[:40] = (1, 2, 3)  # a cell with two points of 1 and 2: 1.5 rounds to 2, 2.5 to 2
+    acc.add(world, colors)
+    acc.color_sum[7] = (3, 5, 255 * 2)
+    acc.count[7] = 2
+    color, pts, cols = acc.finish(blank=(9, 8, 7))
+    n = acc.count[:, None]
+    seen = acc.count > 0
+    want = np.empty((acc.count.size, 3), dtype=np.uint8)
+    want[seen] = np.clip(np.rint(acc.color_sum[seen] / n[seen]), 0, 255).astype(np.uint8)
+    want[~seen] = (9, 8, 7)
+    assert np.array_equal(color.reshape(-1, 3), want) and (~seen).any()
+    assert tuple(color.reshape(-1, 3)[7]) == (2, 2, 255)
+    idx = np.flatnonzero(seen)
+    assert np.array_equal(pts, acc.xyz_sum[idx] / acc.count[idx, None].astype(np.float64))
+    assert np.array_equal(cols, want[idx])
