@@ -406,18 +406,14 @@ def run_textures(
                     ps.samples.append(kept)
 
     # one pass at a time, each let go (its sums: ~90 MB resident on the 2x `sim_loops` building) before the next
-    # one's averages are made; the frame loop's own references to the passes first
+    # one's averages are made: popped from `passes`, and the frame loop's list of them dropped first
     active = []
-    results = {}
-    for name in list(passes):
-        ps = passes.pop(name)
-        results[name] = _result(ps, grid, messages, frames_total, thinned + ps.thinned)
-        del ps
-    return results
+    return {name: _result(passes.pop(name), grid, messages, frames_total, thinned) for name in list(passes)}
 
 
 def _result(ps: _Pass, grid: GridImage, stream_messages: list[str], frames_total: int, thinned: int) -> TextureResult:
-    """One trajectory's TextureResult once the stream is done."""
+    """One trajectory's TextureResult once the stream is done (`thinned`: the stream's frames
+    left out for every trajectory; its own `max_frames` ones are added)."""
     messages = list(stream_messages)
     if frames_total == 0:
         messages.append("the RGB-D stream was empty")
@@ -437,7 +433,7 @@ def _result(ps: _Pass, grid: GridImage, stream_messages: list[str], frames_total
         detector=ps.name,
         frames_total=frames_total,
         frames_used=ps.frames_used,
-        frames_thinned=thinned,
+        frames_thinned=thinned + ps.thinned,
         skipped=ps.skipped,
         frame_time_s=np.asarray(ps.frame_times),
         detect_time_s=np.asarray(ps.detect_times),
