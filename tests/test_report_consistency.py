@@ -130,3 +130,39 @@ def test_an_overlay_handed_over_as_bytes_draws_the_same_pixels():
         return fig_to_data_uri(fig)
 
     assert draw(rgba_bytes(layer)) == draw(layer)
+
+
+def test_a_graph_runs_broken_stretch_says_what_the_loop_search_did_there_and_is_circled_on_the_closures_map(tmp_path: Path) -> None:
+    """The two sections meet: the broken stretches' table says which loop closures tie passes
+    there (loops.csv), and the "Loop closures" map circles the same stretches."""
+    from slamlab.artifacts import write_table
+    from slamlab.io.table import Table
+    from slamlab.report.loops_section import loops_section
+
+    run, cons = _run_with_verdict(tmp_path / "bad", broken=True)
+    span = cons.spans[0]
+    t0 = float(load_run(run).load_trajectory("slam").t[0])
+    # one closure tying the stretch to the start 60 s before, one rejected candidate far away
+    write_table(run / RunFile.LOOPS, Table({
+        "t": np.array([t0 + 70.0, t0 + 75.0]), "node": np.array([70, 75]), "submap": np.array([0, 0]), "anchor": np.array([10, 12]),
+        "t_anchor": np.array([t0 + 10.0, t0 + 12.0]), "status": np.array(["accepted", "ambiguous"]), "score": np.array([0.9, 0.8]),
+        "refined": np.array([0.9, 0.8]), "second": np.zeros(2), "window_m": np.ones(2), "tied_m": np.full(2, 40.0),
+        "node_x": np.array([span.x_m, 90.0]), "node_y": np.array([span.y_m, 90.0]), "match_x": np.array([span.x_m, 90.0]),
+        "match_y": np.array([span.y_m, 90.0]), "moved_m": np.array([0.4, 0.0]), "final_x": np.array([span.x_m, 90.0]),
+        "final_y": np.array([span.y_m, 90.0]), "anchor_x": np.array([span.x_m, 90.0]), "anchor_y": np.array([span.y_m, 90.0]),
+        "residual_m": np.array([0.05, 0.0]), "sigma_along_m": np.array([0.03, 0.03]),
+    }))
+    page = write_run_report(run).read_text()
+    table = page[page.index('id="broken-spans"'):page.index("</table>", page.index('id="broken-spans"'))]
+    assert "loop closures here" in table
+    assert "1 accepted closure ties passes here (between 10 s and 70 s; they moved the robot up to 0.40 m" in table
+    assert "ambiguous" not in table  # the rejected candidate lies far from the stretch
+    section = loops_section(load_run(run))
+    assert section is not None
+    from slamlab.report.loops_section import loops_figure
+
+    loaded = load_run(run)
+    spans = loaded.metrics["consistency"]["broken_spans"]
+    fig = loops_figure(loaded.load_map(), loaded.files.read_columns(RunFile.LOOPS), None, spans=spans)
+    circles = [ln for ln in fig.axes[0].get_lines() if len(ln.get_xdata()) == 90]
+    assert len(circles) == len(spans) and abs(np.mean(circles[0].get_xdata()) - span.x_m) < 0.1

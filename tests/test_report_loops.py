@@ -14,8 +14,9 @@ from slamlab.report.loops_section import loops_figure, loops_section
 from slamlab.report.rundir import load_run
 
 
-def _loops() -> Table:
-    return Table({
+def _loops(**changed: np.ndarray) -> Table:
+    """Three candidates (two accepted, one ambiguous); `changed`: columns given other values."""
+    return Table({**{
         "t": np.array([100.0, 110.0, 120.0]), "node": np.array([10, 11, 12]), "submap": np.array([0, 0, 1]),
         "anchor": np.array([0, 1, 2]), "t_anchor": np.array([10.0, 11.0, 12.0]),
         "status": np.array(["accepted", "ambiguous", "accepted"]), "score": np.array([0.9, 0.8, 0.7]),
@@ -24,7 +25,7 @@ def _loops() -> Table:
         "moved_m": np.array([0.5, 5.0, 0.2]), "final_x": np.array([1.4, 2.0, 3.1]), "final_y": np.array([0.1, 0.0, 0.2]),
         "anchor_x": np.array([-4.0, -3.0, -2.0]), "anchor_y": np.array([0.0, 1.0, 2.0]), "residual_m": np.array([0.01, 4.0, 0.02]),
         "sigma_along_m": np.array([0.03, 0.03, 10.0]),
-    })
+    }, **changed})
 
 
 def test_the_closures_are_drawn_where_they_tie_and_rejected_ones_where_they_pointed():
@@ -83,3 +84,24 @@ def test_a_graph_run_has_no_particle_numbers_in_a_sweep_table():
     assert np.isnan(get_metric(graph, "neff_mean")) and np.isnan(get_metric(graph, "resample_count"))
     assert get_metric(graph, "runtime_s") == 3.0
     assert get_metric(particles, "neff_mean") == 23.5 and get_metric(particles, "resample_count") == 2.0
+
+
+def test_a_broken_stretch_says_which_closures_tie_passes_there_and_which_were_rejected():
+    """`span_closures.closures_at`: the candidates whose node or the node it ties to lies in the
+    stretch's circle, those tying passes (nodes 30 s or more apart) apart from the rest."""
+    from slamlab.report.span_closures import closures_at
+
+    loops = _loops()  # accepted at (1.4, 0.1) and (3.1, 0.2), an ambiguous one at (2, 0); anchors at x -4..-2
+    here = {"x_m": 2.0, "y_m": 0.0, "radius_m": 2.0}
+    assert closures_at(loops, here, 0.0) == ("2 accepted closures tie passes here (between 10 s and 120 s; they moved the robot"
+                                             " up to 0.50 m; the final graph left them at most 0.02 m off); rejected: 1 ambiguous")
+    assert closures_at(loops, {"x_m": 50.0, "y_m": 50.0, "radius_m": 2.0}, 0.0) == "none: no loop candidate was found here"
+    # only the anchors in the circle count too; times since the run's first scan
+    assert closures_at(loops, {"x_m": -4.0, "y_m": 0.0, "radius_m": 0.5}, 5.0).startswith("1 accepted closure ties passes here (between 5 s and 95 s")
+    # the second 5 s after its anchor (the robot's own last seconds, not another pass), the first left 0.8 m from its match
+    loops = _loops(t_anchor=np.array([10.0, 11.0, 115.0]), residual_m=np.array([0.8, 4.0, 0.02]))
+    assert closures_at(loops, here, 0.0) == ("1 accepted closure ties passes here (between 10 s and 100 s; they moved the robot up"
+                                             " to 0.50 m; the final graph left them at most 0.80 m off, 1 over 0.3 m: it disagrees"
+                                             " with that one); 1 more accepted between nodes under 30 s apart; rejected: 1 ambiguous")
+    loops = _loops(t_anchor=np.array([10.0, 11.0, 115.0]), status=np.array(["refuted", "ambiguous", "accepted"]))
+    assert closures_at(loops, here, 0.0).startswith("no accepted closure ties two passes here; 1 more accepted")

@@ -22,6 +22,7 @@ from slamlab.report.byte_image import imshow_bytes
 from slamlab.report.figures import draw_map, fig_to_data_uri, prepare_map, rgba_bytes, rolling_median, step_times, subplots
 from slamlab.report.mpl import Figure
 from slamlab.report.rundir import LogOddsMap, RunDir, Trajectory
+from slamlab.report.span_closures import closures_at
 
 SEE_THROUGH_RGB = (0.84, 0.15, 0.16)  # beams that saw through a wall of the map
 IN_FREE_RGB = (0.12, 0.47, 0.71)  # beams that ended in the map's free space
@@ -93,14 +94,7 @@ def overlay_figure(m: LogOddsMap, layers: dict[str, np.ndarray], spans: list[dic
     imshow_bytes(ax, rgba_bytes(events), (ox, ox + w * b, oy, oy + h * b), zorder=3)
     if path is not None and len(path):
         ax.plot(path.xy[:, 0], path.xy[:, 1], color="#1f77b4", lw=0.6, alpha=0.35, zorder=4)
-    for i, s in enumerate(spans, start=1):
-        if not all(math.isfinite(float(s.get(k, math.nan))) for k in ("x_m", "y_m", "radius_m")):
-            continue
-        circle = _circle(float(s["x_m"]), float(s["y_m"]), float(s["radius_m"]))
-        ax.plot(*circle, color=SPAN_COLOUR, lw=2.0, zorder=5)
-        ax.text(float(s["x_m"]) + float(s["radius_m"]) * 0.75, float(s["y_m"]) + float(s["radius_m"]) * 0.75, str(i),
-                color="white", fontsize=11, fontweight="bold", zorder=6, ha="center", va="center",
-                bbox=dict(boxstyle="circle,pad=0.25", fc=SPAN_COLOUR, ec="none"))
+    draw_spans(ax, spans)
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
     ax.set_xlabel("x (m)")
@@ -115,6 +109,20 @@ def overlay_figure(m: LogOddsMap, layers: dict[str, np.ndarray], spans: list[dic
         handles.append(_line(SPAN_COLOUR, "likely broken here (numbered, worst first)"))
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=9)
     return fig
+
+
+def draw_spans(ax, spans: list[dict[str, Any]]) -> None:
+    """Each broken stretch (metrics.json consistency.broken_spans) circled where its
+    contradicting beams gather and numbered, worst first: on this section's map and on the
+    loop closures' (`loops_section`)."""
+    for i, s in enumerate(spans, start=1):
+        if not all(math.isfinite(float(s.get(k, math.nan))) for k in ("x_m", "y_m", "radius_m")):
+            continue
+        circle = _circle(float(s["x_m"]), float(s["y_m"]), float(s["radius_m"]))
+        ax.plot(*circle, color=SPAN_COLOUR, lw=2.0, zorder=5)
+        ax.text(float(s["x_m"]) + float(s["radius_m"]) * 0.75, float(s["y_m"]) + float(s["radius_m"]) * 0.75, str(i),
+                color="white", fontsize=11, fontweight="bold", zorder=6, ha="center", va="center",
+                bbox=dict(boxstyle="circle,pad=0.25", fc=SPAN_COLOUR, ec="none"))
 
 
 def _circle(x: float, y: float, r: float) -> tuple[np.ndarray, np.ndarray]:
@@ -183,8 +191,14 @@ def consistency_section(run: RunDir) -> ConsistencySection | None:
     if series is not None and len(series) > 1 and "contradiction" in series:
         curve_img = fig_to_data_uri(curve_figure(series, float(cons.get("broken_threshold", 0.4)), spans))
     rows = [{"n": str(i), "where": f"({float(s['x_m']):.1f}, {float(s['y_m']):.1f}) m, within {float(s['radius_m']):.1f} m",
-             "when": f"{float(s['t1_s']):.0f}–{float(s['t2_s']):.0f} s", "share": f"{float(s['peak_share']):.0%}"}
+             "when": f"{float(s['t1_s']):.0f}–{float(s['t2_s']):.0f} s", "share": f"{float(s['peak_share']):.0%}", "closures": ""}
             for i, s in enumerate(spans, start=1)]
+    loops = run.files.read_columns(RunFile.LOOPS)  # a graph run's loop candidates: what its loop search did at each stretch
+    if loops is not None and rows:
+        path = run.load_trajectory("slam")
+        t0 = float(path.t[0]) if path is not None and len(path.t) else 0.0
+        for row, s in zip(rows, spans):
+            row["closures"] = closures_at(loops, s, t0) if len(loops) else "none: the run found no loop candidate"
     shares = ""
     if "contradiction_share" in cons:
         shares = (f"Over the whole run {_pct(cons.get('contradiction_share'))} of the classified beams contradict the map"

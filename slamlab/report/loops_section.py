@@ -5,9 +5,10 @@ loops.csv (every loop candidate the search found, accepted or not) and metrics.j
 The map shows each accepted closure as a green segment between the two places it joins
 (the node's and the submap node's optimised positions; a corridor match, which says nothing
 along the corridor, dashed), the rejected candidates as grey crosses where the match put the
-robot, and the optimised path. Under it: how far the closures asked to move the robot (the
-largest corrections are the loops that closed), the counts by status and the optimiser's
-time.
+robot, the optimised path, and the stretches the map-consistency verdict names likely broken,
+circled and numbered as in that section (whose table says what the loop search did at each:
+`span_closures`). Under it: how far the closures asked to move the robot (the largest
+corrections are the loops that closed), the counts by status and the optimiser's time.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import numpy as np
 
 from slamlab.io.rundir import RunFile
 from slamlab.io.table import Table
+from slamlab.report.consistency_section import SPAN_COLOUR, draw_spans
 from slamlab.report.section import ExtraSection
 from slamlab.report.figures import draw_map, fig_to_data_uri, prepare_map, subplots
 from slamlab.report.mpl import Figure
@@ -26,9 +28,11 @@ REJECTED_RGB = "#8c959f"
 LARGEST = 8  # rows of the table: the closures that moved the robot most
 
 
-def loops_figure(m: LogOddsMap | None, loops: Table, path: Trajectory | None, max_px: int = 1000, width_in: float = 13.0) -> Figure:
+def loops_figure(m: LogOddsMap | None, loops: Table, path: Trajectory | None, max_px: int = 1000, width_in: float = 13.0,
+                 spans: list[dict] | None = None) -> Figure:
     """The map with the accepted closures as segments and the rejected candidates as crosses
-    (module doc)."""
+    (module doc), and the stretches the consistency verdict names likely broken (`spans`,
+    metrics.json consistency.broken_spans) circled and numbered as in that section."""
     view = prepare_map(m, max_px, [path] if path is not None else []) if m is not None else None
     fig, ax = subplots(figsize=(width_in, width_in * 0.6))
     draw_map(ax, view)
@@ -45,6 +49,9 @@ def loops_figure(m: LogOddsMap | None, loops: Table, path: Trajectory | None, ma
     rej = np.flatnonzero(~acc)
     if len(rej):
         ax.plot(loops["match_x"][rej], loops["match_y"][rej], "x", color=REJECTED_RGB, ms=4, label="rejected candidate (where it put the robot)")
+    if spans:
+        draw_spans(ax, spans)
+        ax.plot([], [], color=SPAN_COLOUR, lw=2.0, label="likely broken (the consistency section's stretches)")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.legend(loc="upper right", fontsize=8, framealpha=0.85)
@@ -60,7 +67,9 @@ def loops_section(run: RunDir) -> ExtraSection | None:
     if len(loops) == 0:
         return ExtraSection(id="loops", title="Loop closures", note=_counts(graph) + " No loop candidate was found.")
     path = run.load_trajectory("slam")
-    fig = loops_figure(run.load_map(), loops, path)
+    cons = run.metrics.get("consistency") if isinstance(run.metrics.get("consistency"), dict) else {}
+    spans = [s for s in cons.get("broken_spans") or [] if isinstance(s, dict)]
+    fig = loops_figure(run.load_map(), loops, path, spans=spans)
     img = fig_to_data_uri(fig)
     acc = np.flatnonzero(loops["status"].astype(str) == "accepted")
     order = acc[np.argsort(-loops["moved_m"][acc], kind="stable")][:LARGEST]
