@@ -176,9 +176,9 @@ def consistency_section(run: RunDir) -> ConsistencySection | None:
     spans = [s for s in cons.get("broken_spans") or [] if isinstance(s, dict)]
     layers = run.files.read_arrays(RunFile.CONSISTENCY_MAP)
     m = run.load_map()
+    path = run.load_trajectory("slam")
     overlay_img, note = None, ""
     if layers is not None and m is not None:
-        path = run.load_trajectory("slam")
         overlay_img = fig_to_data_uri(overlay_figure(m, layers, spans, path))
         note = (f"Up to {cons.get('scans_scored', '?')} scans replayed at the estimated path against the final map. Red: a beam passed"
                 " through a wall the map holds before its own end (more than 0.3 m short of it); blue: a beam ended where the map"
@@ -195,7 +195,6 @@ def consistency_section(run: RunDir) -> ConsistencySection | None:
             for i, s in enumerate(spans, start=1)]
     loops = run.files.read_columns(RunFile.LOOPS)  # a graph run's loop candidates: what its loop search did at each stretch
     if loops is not None and rows:
-        path = run.load_trajectory("slam")
         t0 = float(path.t[0]) if path is not None and len(path.t) else 0.0
         for row, s in zip(rows, spans):
             row["closures"] = closures_at(loops, s, t0) if len(loops) else "none: the run found no loop candidate"

@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from slamlab.eval.relations import LOOP_MIN_DT_S as LOOP_DT_S  # a closure ties two passes when its nodes are this far apart (s)
 from slamlab.io.table import Table
 
-LOOP_DT_S = 30.0  # a closure ties two passes when its two nodes are this far apart in time (the relations' loop_min_dt_s)
 FAR_OFF_M = 0.3  # an accepted closure the final graph left this far (m) from its match disagrees with the graph
 
 
