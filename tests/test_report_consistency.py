@@ -133,8 +133,9 @@ def test_an_overlay_handed_over_as_bytes_draws_the_same_pixels():
 
 
 def test_a_graph_runs_broken_stretch_says_what_the_loop_search_did_there_and_is_circled_on_the_closures_map(tmp_path: Path) -> None:
-    """The two sections meet: the broken stretches' table says which loop closures tie passes
-    there (loops.csv), and the "Loop closures" map circles the same stretches."""
+    """The two sections meet: the broken stretches' table says which loop closures tie the
+    stretch's pass to an earlier one (loops.csv), and the "Loop closures" map circles the same
+    stretches."""
     from slamlab.artifacts import write_table
     from slamlab.io.table import Table
     from slamlab.report.loops_section import loops_section
@@ -142,10 +143,11 @@ def test_a_graph_runs_broken_stretch_says_what_the_loop_search_did_there_and_is_
     run, cons = _run_with_verdict(tmp_path / "bad", broken=True)
     span = cons.spans[0]
     t0 = float(load_run(run).load_trajectory("slam").t[0])
-    # one closure tying the stretch to the start 60 s before, one rejected candidate far away
+    # one closure from the stretch tying it to a pass 60 s before, one rejected candidate long after it
+    t_at = t0 + span.t1_s + 1.0
     write_table(run / RunFile.LOOPS, Table({
-        "t": np.array([t0 + 70.0, t0 + 75.0]), "node": np.array([70, 75]), "submap": np.array([0, 0]), "anchor": np.array([10, 12]),
-        "t_anchor": np.array([t0 + 10.0, t0 + 12.0]), "status": np.array(["accepted", "ambiguous"]), "score": np.array([0.9, 0.8]),
+        "t": np.array([t_at, t_at + span.t2_s - span.t1_s + 60.0]), "node": np.array([70, 75]), "submap": np.array([0, 0]), "anchor": np.array([10, 12]),
+        "t_anchor": np.array([t_at - 60.0, t0]), "status": np.array(["accepted", "ambiguous"]), "score": np.array([0.9, 0.8]),
         "refined": np.array([0.9, 0.8]), "second": np.zeros(2), "window_m": np.ones(2), "tied_m": np.full(2, 40.0),
         "node_x": np.array([span.x_m, 90.0]), "node_y": np.array([span.y_m, 90.0]), "match_x": np.array([span.x_m, 90.0]),
         "match_y": np.array([span.y_m, 90.0]), "moved_m": np.array([0.4, 0.0]), "final_x": np.array([span.x_m, 90.0]),
@@ -154,9 +156,9 @@ def test_a_graph_runs_broken_stretch_says_what_the_loop_search_did_there_and_is_
     }))
     page = write_run_report(run).read_text()
     table = page[page.index('id="broken-spans"'):page.index("</table>", page.index('id="broken-spans"'))]
-    assert "loop closures here" in table
-    assert "1 accepted closure ties passes here (between 10 s and 70 s; they moved the robot up to 0.40 m" in table
-    assert "ambiguous" not in table  # the rejected candidate lies far from the stretch
+    assert "loop closures on this pass" in table
+    assert f"1 accepted closure ties this pass to earlier ones (at {span.t1_s - 59.0:.0f} s; they moved the robot up to 0.40 m" in table
+    assert "ambiguous" not in table  # the rejected candidate was searched long after the stretch
     section = loops_section(load_run(run))
     assert section is not None
     from slamlab.report.loops_section import loops_figure

@@ -86,22 +86,24 @@ def test_a_graph_run_has_no_particle_numbers_in_a_sweep_table():
     assert get_metric(particles, "neff_mean") == 23.5 and get_metric(particles, "resample_count") == 2.0
 
 
-def test_a_broken_stretch_says_which_closures_tie_passes_there_and_which_were_rejected():
-    """`span_closures.closures_at`: the candidates whose node or the node it ties to lies in the
-    stretch's circle, those tying passes (nodes 30 s or more apart) apart from the rest."""
+def test_a_broken_stretch_says_whether_its_pass_was_tied_to_an_earlier_one():
+    """`span_closures.closures_at`: the candidates searched from the stretch's own scans (and
+    30 s after), the accepted ones tying it to a pass before it apart from those tying it to itself."""
     from slamlab.report.span_closures import closures_at
 
-    loops = _loops()  # accepted at (1.4, 0.1) and (3.1, 0.2), an ambiguous one at (2, 0); anchors at x -4..-2
-    here = {"x_m": 2.0, "y_m": 0.0, "radius_m": 2.0}
-    assert closures_at(loops, here, 0.0) == ("2 accepted closures tie passes here (between 10 s and 120 s; they moved the robot"
+    loops = _loops()  # searched at 100, 110 and 120 s: accepted to 10 s, ambiguous, accepted to 12 s
+    span = {"t1_s": 95.0, "t2_s": 105.0}  # with 30 s after it: all three
+    assert closures_at(loops, span, 0.0) == ("2 accepted closures tie this pass to earlier ones (at 10–12 s; they moved the robot"
                                              " up to 0.50 m; the final graph left them at most 0.02 m off); rejected: 1 ambiguous")
-    assert closures_at(loops, {"x_m": 50.0, "y_m": 50.0, "radius_m": 2.0}, 0.0) == "none: no loop candidate was found here"
-    # only the anchors in the circle count too; times since the run's first scan
-    assert closures_at(loops, {"x_m": -4.0, "y_m": 0.0, "radius_m": 0.5}, 5.0).startswith("1 accepted closure ties passes here (between 5 s and 95 s")
-    # the second 5 s after its anchor (the robot's own last seconds, not another pass), the first left 0.8 m from its match
+    assert closures_at(loops, {"t1_s": 200.0, "t2_s": 210.0}, 0.0) == "none: no loop candidate was found from this pass"
+    # times since the run's first scan (here 5 s into the log's clock)
+    assert closures_at(loops, {"t1_s": 90.0, "t2_s": 100.0}, 5.0).startswith("2 accepted closures tie this pass to earlier ones (at 5–7 s;")
+    # the third ties to 115 s (5 s before it: the pass itself), the first is left 0.8 m from its match
     loops = _loops(t_anchor=np.array([10.0, 11.0, 115.0]), residual_m=np.array([0.8, 4.0, 0.02]))
-    assert closures_at(loops, here, 0.0) == ("1 accepted closure ties passes here (between 10 s and 100 s; they moved the robot up"
+    assert closures_at(loops, span, 0.0) == ("1 accepted closure ties this pass to earlier ones (at 10 s; they moved the robot up"
                                              " to 0.50 m; the final graph left them at most 0.80 m off, 1 over 0.3 m: it disagrees"
-                                             " with that one); 1 more accepted between nodes under 30 s apart; rejected: 1 ambiguous")
-    loops = _loops(t_anchor=np.array([10.0, 11.0, 115.0]), status=np.array(["refuted", "ambiguous", "accepted"]))
-    assert closures_at(loops, here, 0.0).startswith("no accepted closure ties two passes here; 1 more accepted")
+                                             " with that one); 1 more tie it to itself; rejected: 1 ambiguous")
+    # a closure to a node inside the stretch ties the pass to itself, however long ago in the stretch
+    loops = _loops(t_anchor=np.array([10.0, 11.0, 60.0]), status=np.array(["refuted", "ambiguous", "accepted"]))
+    assert closures_at(loops, {"t1_s": 50.0, "t2_s": 110.0}, 0.0) == ("no accepted closure ties this pass to an earlier one; 1 tie it"
+                                                                       " to itself; rejected: 1 ambiguous, 1 refuted")
