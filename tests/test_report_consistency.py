@@ -157,6 +157,9 @@ def test_a_graph_runs_broken_stretch_says_what_the_loop_search_did_there_and_is_
     page = write_run_report(run).read_text()
     table = page[page.index('id="broken-spans"'):page.index("</table>", page.index('id="broken-spans"'))]
     assert "loop closures on this pass" in table
+    # and the line at the top says it of the worst stretch, the one the verdict names
+    top = page[page.index('id="verdict-line"'):page.index("</p>", page.index('id="verdict-line"'))]
+    assert "Loop closures on that pass: 1 accepted closure ties this pass to earlier ones" in top
     assert f"1 accepted closure ties this pass to earlier ones (at {span.t1_s - 59.0:.0f} s; they moved the robot up to 0.40 m" in table
     assert "ambiguous" not in table  # the rejected candidate was searched long after the stretch
     section = loops_section(load_run(run))
