@@ -43,6 +43,13 @@ class ConsistencySection:
     shares: str
 
 
+def broken_spans(run: RunDir) -> list[dict[str, Any]]:
+    """The stretches the verdict names likely broken, worst first (metrics.json
+    consistency.broken_spans; none for a run without a verdict)."""
+    cons = run.metrics.get("consistency")
+    return [s for s in (cons.get("broken_spans") or [] if isinstance(cons, dict) else []) if isinstance(s, dict)]
+
+
 def verdict_line(consistency: dict[str, Any] | None) -> tuple[str, bool | None] | None:
     """(the one line a reader sees first, whether it says consistent), from metrics.json's
     "consistency"; None for a run without one (older runs, or nothing replayed)."""
@@ -173,7 +180,7 @@ def consistency_section(run: RunDir) -> ConsistencySection | None:
     if line is None:
         return None
     text, ok = line
-    spans = [s for s in cons.get("broken_spans") or [] if isinstance(s, dict)]
+    spans = broken_spans(run)
     layers = run.files.read_arrays(RunFile.CONSISTENCY_MAP)
     m = run.load_map()
     path = run.load_trajectory("slam")
@@ -193,7 +200,7 @@ def consistency_section(run: RunDir) -> ConsistencySection | None:
     rows = [{"n": str(i), "where": f"({float(s['x_m']):.1f}, {float(s['y_m']):.1f}) m, within {float(s['radius_m']):.1f} m",
              "when": f"{float(s['t1_s']):.0f}–{float(s['t2_s']):.0f} s", "share": f"{float(s['peak_share']):.0%}", "closures": ""}
             for i, s in enumerate(spans, start=1)]
-    loops = run.files.read_columns(RunFile.LOOPS)  # a graph run's loop candidates: what its loop search did at each stretch
+    loops = run.load_loops()  # a graph run's loop candidates: what its loop search did at each stretch
     if loops is not None and rows:
         t0 = float(path.t[0]) if path is not None and len(path.t) else 0.0
         for row, s in zip(rows, spans):

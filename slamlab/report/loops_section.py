@@ -15,9 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamlab.io.rundir import RunFile
 from slamlab.io.table import Table
-from slamlab.report.consistency_section import SPAN_COLOUR, draw_spans
+from slamlab.report.consistency_section import SPAN_COLOUR, broken_spans, draw_spans
 from slamlab.report.section import ExtraSection
 from slamlab.report.figures import draw_map, fig_to_data_uri, prepare_map, subplots
 from slamlab.report.mpl import Figure
@@ -60,16 +59,14 @@ def loops_figure(m: LogOddsMap | None, loops: Table, path: Trajectory | None, ma
 
 def loops_section(run: RunDir) -> ExtraSection | None:
     """The section, or None for a run that wrote no loops.csv (every other filter)."""
-    loops = run.files.read_columns(RunFile.LOOPS)
+    loops = run.load_loops()
     if loops is None:
         return None
     graph = run.metrics.get("graph") if isinstance(run.metrics.get("graph"), dict) else {}
     if len(loops) == 0:
         return ExtraSection(id="loops", title="Loop closures", note=_counts(graph) + " No loop candidate was found.")
     path = run.load_trajectory("slam")
-    cons = run.metrics.get("consistency") if isinstance(run.metrics.get("consistency"), dict) else {}
-    spans = [s for s in cons.get("broken_spans") or [] if isinstance(s, dict)]
-    fig = loops_figure(run.load_map(), loops, path, spans=spans)
+    fig = loops_figure(run.load_map(), loops, path, spans=broken_spans(run))
     img = fig_to_data_uri(fig)
     acc = np.flatnonzero(loops["status"].astype(str) == "accepted")
     order = acc[np.argsort(-loops["moved_m"][acc], kind="stable")][:LARGEST]

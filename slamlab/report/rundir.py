@@ -209,6 +209,11 @@ class RunDir:
         """The per-step table (steps.csv) as NumPy columns, or None."""
         return self._cached("steps", lambda: self.files.read_columns(RunFile.STEPS_CSV))
 
+    def load_loops(self) -> Table | None:
+        """A graph run's loop candidates (loops.csv) as NumPy columns, or None (other filters):
+        read by the loop-closure section and by the consistency section's broken stretches."""
+        return self._cached("loops", lambda: self.files.read_columns(RunFile.LOOPS))
+
 
 # --- file readers (the contract reads, these wrap for the figures) -----------------------
 def _trajectory(read: tuple[np.ndarray, np.ndarray] | None) -> Trajectory | None:
