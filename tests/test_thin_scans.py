@@ -115,3 +115,18 @@ def test_a_run_whose_scans_go_blind_says_so_and_a_clean_run_says_nothing(overrid
     with caplog.at_level(logging.WARNING):
         dead = run_slam(blind, build_components(_cfg(*overrides, "mode=odometry")))
     assert dead.extras["thin_scans"] is None and "too few to match" not in caplog.text
+
+
+def test_a_log_whose_odometry_never_moves_says_so_and_a_moving_one_says_nothing(caplog):
+    seq = _room_sequence()
+    scans = [dataclasses.replace(f, odom=np.zeros(3)) for f in seq.scans]  # a log without odometry: its fields all zero
+    still = dataclasses.replace(seq, scans=scans)
+    cfg = _cfg("+experiment=lidar2d", "dataset.path=unused", "steps.min_distance_m=0.1", "steps.min_angle_rad=0.1")
+    with caplog.at_level(logging.WARNING):
+        result = run_slam(still, build_components(cfg))
+    assert int(result.extras["processed_steps"]) == 1
+    assert f"room: the odometry never moves (all {len(scans)} scans at x=0.000 m, y=0.000 m, theta=0.000 rad): 1 of them processed" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        run_slam(seq, build_components(cfg))  # the room's robot stands still for its first 5 scans, then drives
+    assert "never moves" not in caplog.text
