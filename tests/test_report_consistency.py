@@ -159,7 +159,8 @@ def test_a_graph_runs_broken_stretch_says_what_the_loop_search_did_there_and_is_
     assert "loop closures on this pass" in table
     # and the line at the top says it of the worst stretch, the one the verdict names
     top = page[page.index('id="verdict-line"'):page.index("</p>", page.index('id="verdict-line"'))]
-    assert "Loop closures on that pass: 1 accepted closure ties this pass to earlier ones" in top
+    # (a stretch at the run's start: the path had not been there before, but a closure ties it to an earlier pass)
+    assert "Loop closures on that pass: the path had not come within 10 m of it before; 1 accepted closure ties this pass to earlier ones" in top
     assert f"1 accepted closure ties this pass to earlier ones (at {span.t1_s - 59.0:.0f} s; they moved the robot up to 0.40 m" in table
     assert "ambiguous" not in table  # the rejected candidate was searched long after the stretch
     section = loops_section(load_run(run))

@@ -107,3 +107,30 @@ def test_a_broken_stretch_says_whether_its_pass_was_tied_to_an_earlier_one():
     loops = _loops(t_anchor=np.array([10.0, 11.0, 60.0]), status=np.array(["refuted", "ambiguous", "accepted"]))
     assert closures_at(loops, {"t1_s": 50.0, "t2_s": 110.0}, 0.0) == ("no accepted closure ties this pass to an earlier one; 1 tie it"
                                                                        " to itself; rejected: 1 ambiguous, 1 refuted")
+
+
+def test_a_broken_stretch_says_whether_the_path_had_been_there_before():
+    """`span_closures.earlier_pass`: the last time the path was within 10 m of the stretch's
+    poses before the visit the stretch belongs to, or None for a first pass; `closures_at`
+    leads with it."""
+    from slamlab.report.span_closures import closures_at, earlier_pass
+
+    # a 1 m/s walk east along y = 0 for 100 s, north for 50 s, back west along y = 50 for 100 s, then south down x = 0
+    t = np.arange(0.0, 300.0)
+    xy = np.concatenate([np.column_stack([t[:100], np.zeros(100)]), np.column_stack([np.full(50, 100.0), np.arange(50.0)]),
+                         np.column_stack([100.0 - np.arange(100.0), np.full(100, 50.0)]), np.column_stack([np.zeros(50), 50.0 - np.arange(50.0)])])
+    # going south down x = 0 it comes back within 10 m of where it was at 9 s (x = 9, y = 0) when it reaches y = 10
+    assert earlier_pass(t, xy, 295.0, 299.0) == 9.0
+    # the walk back along y = 50 passes 50 m from the first leg: a first pass; the stretch's own approach does not count
+    assert earlier_pass(t, xy, 200.0, 210.0) is None
+    # the stretch at the corner (100, 50): the path came up the east side from (100, 40) on, the same visit
+    assert earlier_pass(t, xy, 150.0, 151.0) is None
+    loops = _loops()  # searched at 100, 110 and 120 s: accepted to 10 s, ambiguous, accepted to 12 s
+    assert closures_at(loops, {"t1_s": 200.0, "t2_s": 210.0}, 0.0, (t, xy)) == (
+        "a first pass here (the path had not come within 10 m of it before): no loop to close; no loop candidate was found from this pass")
+    # a revisit names when the path was there; a first pass with closures of its own counts them as closures
+    assert closures_at(loops, {"t1_s": 295.0, "t2_s": 299.0}, 0.0, (t, xy)).startswith("back where the path was at 9 s; ")
+    own = _loops(t_anchor=np.array([100.0, 101.0, 102.0]), status=np.array(["accepted", "ambiguous", "accepted"]))
+    assert closures_at(own, {"t1_s": 95.0, "t2_s": 105.0}, 0.0, (t, xy)) == (
+        "a first pass here (the path had not come within 10 m of it before): no loop to close; 2 closures tie it to itself;"
+        " rejected: 1 ambiguous")
