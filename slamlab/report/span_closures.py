@@ -22,7 +22,6 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-
 from scipy.spatial import cKDTree
 
 from slamlab.eval.relations import LOOP_MIN_DT_S as LOOP_DT_S  # an earlier pass: its node this far (s) before the closure's
