@@ -44,10 +44,8 @@ def earlier_pass(t: FloatArray, xy: FloatArray, t1: float, t2: float, near_m: fl
         inside = np.array([min(int(np.searchsorted(t, t1)), len(t) - 1)])
     d, _ = cKDTree(xy[inside]).query(xy, distance_upper_bound=near_m)
     near = np.isfinite(d)
-    start = int(inside[0])
-    while start > 0 and near[start - 1]:  # back to where this visit began
-        start -= 1
-    before = np.flatnonzero(near[:start])
+    away = np.flatnonzero(~near[: inside[0]])  # this visit began after the path's last pose away from the stretch
+    before = np.flatnonzero(near[: away[-1]]) if len(away) else away
     return float(t[before[-1]]) if len(before) else None
 
 

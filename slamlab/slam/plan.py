@@ -22,7 +22,7 @@ import numpy as np
 
 from slamlab.errors import ConfigError
 from slamlab.frames import ScanFrame, Sequence, scan_odometry, scan_times
-from slamlab.geometry import FloatArray, wrap_angle
+from slamlab.geometry import FloatArray
 from slamlab.slam.filters import FilterKind
 from slamlab.slam.grid import MapSettings
 from slamlab.slam.matcher import MatchPoints, Matcher
@@ -30,7 +30,7 @@ from slamlab.slam.motion import MotionModel
 from slamlab.slam.odometry_jumps import OdometryJump, bridge_jumps, find_jumps
 from slamlab.slam.resample import Resampler
 from slamlab.slam.scan import ScanBatch, range_limits
-from slamlab.slam.steps import STATIC_EPS_M, STATIC_EPS_RAD, select_steps
+from slamlab.slam.steps import first_move, select_steps
 from slamlab.slam.thin_scans import THIN_RETURNS, ThinScans, thin_stretches, usable_returns
 from slamlab.slam.weighting import Weighting
 
@@ -90,13 +90,6 @@ class StepPlan:
         return thin if thin is not None and thin.worth_a_warning else None
 
 
-def odometry_moves(odom: FloatArray) -> bool:
-    """Whether the odometry (N, 3) ever leaves its first pose (by more than `steps.STATIC_EPS_M`
-    or `STATIC_EPS_RAD`)."""
-    d = odom[:, :2] - odom[0, :2]
-    return bool((np.hypot(d[:, 0], d[:, 1]) > STATIC_EPS_M).any() or (np.abs(wrap_angle(odom[:, 2] - odom[0, 2])) > STATIC_EPS_RAD).any())
-
-
 def plan_steps(sequence: Sequence, c: Components) -> StepPlan:
     """The scans of a run: the first `steps.max_scans` scans, and with `steps.max_steps` the
     scans up to the last processed one; their odometry with each jump taken as no motion
@@ -110,7 +103,7 @@ def plan_steps(sequence: Sequence, c: Components) -> StepPlan:
     jumps = find_jumps(odom, times, c.odom_jump_m, c.odom_jump_rad)
     odom = bridge_jumps(odom, jumps)
     step_scans = select_steps(odom, c.every, c.min_distance_m, c.min_angle_rad, c.skip_static_start)
-    if len(scans) > 1 and not odometry_moves(odom):
+    if len(scans) > 1 and first_move(odom) is None:
         # the steps wait for the odometry to move: a log without odometry (its fields all zero) ends as one scan's map
         log.warning("%s: the odometry never moves (all %d scans at x=%.3f m, y=%.3f m, theta=%.3f rad): %d of them processed. "
                     "slamlab predicts every step from the odometry; a log without any (its odometry fields all zero) "

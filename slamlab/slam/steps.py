@@ -20,6 +20,14 @@ STATIC_EPS_M = 1e-4  # odometry changes below these count as standing still
 STATIC_EPS_RAD = 1e-4
 
 
+def first_move(odometry: FloatArray) -> int | None:
+    """The index of the first scan whose odometry (N, 3) leaves the first scan's pose by more
+    than STATIC_EPS_M or STATIC_EPS_RAD; None when it never does (a log without odometry)."""
+    d = se2_between(odometry[0], odometry)
+    moved = np.flatnonzero((np.hypot(d[:, 0], d[:, 1]) > STATIC_EPS_M) | (np.abs(d[:, 2]) > STATIC_EPS_RAD))
+    return int(moved[0]) if len(moved) else None
+
+
 def select_steps(
     odometry: FloatArray,
     every: int = 1,
@@ -33,9 +41,8 @@ def select_steps(
         return np.zeros(0, dtype=np.int64)
     start = 0
     if skip_static_start:
-        d = se2_between(odometry[0], odometry)
-        moved = np.nonzero((np.hypot(d[:, 0], d[:, 1]) > STATIC_EPS_M) | (np.abs(d[:, 2]) > STATIC_EPS_RAD))[0]
-        start = max(int(moved[0]) - 1, 0) if len(moved) else n - 1
+        moved = first_move(odometry)
+        start = max(moved - 1, 0) if moved is not None else n - 1
     if min_distance_m <= 0 and min_angle_rad <= 0:
         return np.arange(start, n, every, dtype=np.int64)
     inc = se2_between(odometry[start:-1], odometry[start + 1 :])
