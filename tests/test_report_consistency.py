@@ -163,6 +163,12 @@ def test_a_graph_runs_broken_stretch_says_what_the_loop_search_did_there_and_is_
     assert "Loop closures on that pass: the path had not come within 10 m of it before; 1 accepted closure ties this pass to earlier ones" in top
     assert f"1 accepted closure ties this pass to earlier ones (at {span.t1_s - 59.0:.0f} s; they moved the robot up to 0.40 m" in table
     assert "ambiguous" not in table  # the rejected candidate was searched long after the stretch
+    # the note under the table states the windows the lines were read with, as the code holds them
+    from slamlab.report import span_closures
+    import html
+
+    note = html.unescape(page[page.index("</table>", page.index('id="broken-spans"')):])
+    assert f"within {span_closures.NEAR_M:g} m of the stretch's poses" in note and f"for {span_closures.LOOP_DT_S:g} s after it" in note
     section = loops_section(load_run(run))
     assert section is not None
     from slamlab.report.loops_section import loops_figure

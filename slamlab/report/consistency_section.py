@@ -22,7 +22,7 @@ from slamlab.report.byte_image import imshow_bytes
 from slamlab.report.figures import draw_map, fig_to_data_uri, prepare_map, rgba_bytes, rolling_median, step_times, subplots
 from slamlab.report.mpl import Figure
 from slamlab.report.rundir import LogOddsMap, RunDir, Trajectory
-from slamlab.report.span_closures import closures_at
+from slamlab.report.span_closures import closures_at, closures_note
 
 SEE_THROUGH_RGB = (0.84, 0.15, 0.16)  # beams that saw through a wall of the map
 IN_FREE_RGB = (0.12, 0.47, 0.71)  # beams that ended in the map's free space
@@ -41,6 +41,7 @@ class ConsistencySection:
     curve_img: str | None
     spans: list[dict[str, str]]
     shares: str
+    closures_note: str  # how to read the spans' "closures" lines (`span_closures.closures_note`)
 
 
 def broken_spans(run: RunDir) -> list[dict[str, Any]]:
@@ -210,7 +211,7 @@ def consistency_section(run: RunDir) -> ConsistencySection | None:
         shares = (f"Over the whole run {_pct(cons.get('contradiction_share'))} of the classified beams contradict the map"
                   f" ({_pct(cons.get('see_through_share'))} saw through a wall, {_pct(cons.get('in_free_share'))} ended in"
                   f" free space); the worst stretch of {cons.get('window_scans', 25)} replayed scans {_pct(cons.get('contradiction_worst_window'))}.")
-    return ConsistencySection(text, ok, overlay_img, note, curve_img, rows, shares)
+    return ConsistencySection(text, ok, overlay_img, note, curve_img, rows, shares, closures_note())
 
 
 def _pct(v: Any) -> str:

@@ -32,6 +32,19 @@ FAR_OFF_M = 0.3  # an accepted closure the final graph left this far (m) from it
 NEAR_M = 10.0  # the path within this (m) of a stretch's poses was there: a room, or a stretch of corridor a scan sees whole
 
 
+def closures_note() -> str:
+    """The note under the broken stretches' table, for the "Loop closures on this pass" column:
+    how to read its lines (with the windows `closures_at` and `earlier_pass` use)."""
+    return ("Loop closures on this pass: the loop candidates searched from the stretch's own scans and for "
+            f"{LOOP_DT_S:g} s after it (loops.csv; the \"Loop closures\" section circles the stretches too), after whether the path "
+            f"had been there before (within {NEAR_M:g} m of the stretch's poses, before the visit it belongs to): a first pass has "
+            "no earlier one to be tied to, so what contradicts the map there is not a loop left open (people, glass, a slipped "
+            "match). A pass that went back to a place mapped before with no closure tying it to an earlier pass is a loop that "
+            "did not close (closures to the pass itself hold it together, not to the older map). Closures to an earlier pass "
+            "that the final graph left on their matches: where they tie, the passes agree. A closure left far off: the final "
+            "graph disagrees with that match.")
+
+
 def earlier_pass(t: FloatArray, xy: FloatArray, t1: float, t2: float, near_m: float = NEAR_M) -> float | None:
     """When the path (`t` (N,) s since the first scan, `xy` (N, 2) m) was last within `near_m`
     of the stretch t1..t2's poses before the visit the stretch belongs to (the path's run of
