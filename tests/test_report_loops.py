@@ -130,6 +130,12 @@ def test_a_broken_stretch_says_whether_the_path_had_been_there_before():
         "a first pass here (the path had not come within 10 m of it before): no loop to close; no loop candidate was found from this pass")
     # a revisit names when the path was there; a first pass with closures of its own counts them as closures
     assert closures_at(loops, {"t1_s": 295.0, "t2_s": 299.0}, 0.0, (t, xy)).startswith("back where the path was at 9 s; ")
+    # a run whose loop search found nothing at all (loops.csv without rows): the same lead
+    from slamlab.io.table import Table
+
+    assert closures_at(Table({}), {"t1_s": 295.0, "t2_s": 299.0}, 0.0, (t, xy)) == (
+        "back where the path was at 9 s; no loop candidate was found from this pass")
+    assert closures_at(Table({}), {"t1_s": 200.0, "t2_s": 210.0}, 0.0, None) == "none: no loop candidate was found from this pass"
     own = _loops(t_anchor=np.array([100.0, 101.0, 102.0]), status=np.array(["accepted", "ambiguous", "accepted"]))
     assert closures_at(own, {"t1_s": 95.0, "t2_s": 105.0}, 0.0, (t, xy)) == (
         "a first pass here (the path had not come within 10 m of it before): no loop to close; 2 closures tie it to itself;"

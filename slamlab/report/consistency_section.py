@@ -205,7 +205,7 @@ def consistency_section(run: RunDir) -> ConsistencySection | None:
     if loops is not None and rows:
         t0 = float(path.t[0]) if path is not None and len(path.t) else 0.0
         for row, s in zip(rows, spans):
-            row["closures"] = closures_at(loops, s, t0, None if path is None else (path.t, path.xy)) if len(loops) else "none: the run found no loop candidate"
+            row["closures"] = closures_at(loops, s, t0, None if path is None else (path.t, path.xy))
     shares = ""
     if "contradiction_share" in cons:
         shares = (f"Over the whole run {_pct(cons.get('contradiction_share'))} of the classified beams contradict the map"

@@ -67,8 +67,11 @@ def closures_at(loops: Table, span: Mapping[str, Any], t0: float, path: tuple[Fl
     consistency.broken_spans: `t1_s`, `t2_s`, s since the run's first scan, whose time is
     `t0`; module doc), times written the same way. With the run's `path` (its poses' times in
     the log's clock and (N, 2) positions, m), it first says whether the pass went back to where
-    the path had been (`earlier_pass`) or was the first one there."""
+    the path had been (`earlier_pass`) or was the first one there. `loops` may be empty (a run
+    that found no loop candidate)."""
     t1, t2 = float(span["t1_s"]), float(span["t2_s"])
+    if not len(loops):  # the run found no loop candidate anywhere (loops.csv without rows or columns)
+        loops = Table({name: np.zeros(0) for name in ("t", "t_anchor", "residual_m", "moved_m")} | {"status": np.zeros(0, dtype=str)})
     t, ta = loops["t"] - t0, loops["t_anchor"] - t0
     during = (t >= t1) & (t <= t2 + LOOP_DT_S)
     status = loops["status"].astype(str)
