@@ -44,6 +44,18 @@ def robotlaser1(ranges, remissions, laser_pose, robot_pose, t, start=-np.pi / 2,
     )
 
 
+def rawlaser1(ranges, t, start=-np.pi / 2, res=np.pi / 180, max_range=20.0, remissions=()):
+    r = " ".join(str(v) for v in ranges)
+    e = " ".join(str(v) for v in remissions)
+    fov = res * (len(ranges) - 1)
+    return (f"RAWLASER1 0 {start:.6f} {fov:.6f} {res:.6f} {max_range} 0.01 0 {len(ranges)} {r} "
+            f"{len(remissions)} {e} {t:.6f} myhost {t + 0.01:.6f}").replace("  ", " ")
+
+
+def odom_line(x, y, th, t):
+    return f"ODOM {x:.6f} {y:.6f} {th:.6f} 0.3 0.1 0.0 {t:.6f} nohost {t + 0.01:.6f}"
+
+
 SMALL_LOG = "\n".join(
     [
         "# message_name [message contents] ipc_timestamp ipc_hostname logger_timestamp",
@@ -259,6 +271,71 @@ def test_robotlaser1_log(tmp_path):
     assert s.valid.tolist() == [True, False, True, True, False]  # >= max_range 20, NaN
     assert seq.max_range_m == 20.0
     np.testing.assert_allclose(s.lidar_to_body[:3, 3], [0.1, 0, 0], atol=1e-5)
+
+
+def test_a_rawlaser1_log_reads_like_the_same_scans_as_flaser_its_poses_from_odom(tmp_path):
+    """RAWLASER1 scans carry no pose: with an ODOM record at each scan's time just before it,
+    the log reads as the FLASER log of the same scans and poses, to the bit but for the
+    angles (from the record's start and step, written to 6 decimals: 5e-5 rad at the last beam)."""
+    rng = np.random.default_rng(3)
+    fl, raw = [], []
+    for k in range(6):
+        t = 100.0 + 0.2 * k - (0.5 if k == 4 else 0.0)  # the clock steps back once, as Intel's does
+        pose = (0.3 * k, 0.05 * k * k, -3.1 + 1.3 * k)
+        ranges = [round(float(v), 3) for v in rng.uniform(0.5, 25.0, 180)] + [20.0]
+        fl.append(flaser(ranges, pose=pose, t=t))
+        raw += [odom_line(*pose, t), rawlaser1(ranges, t, max_range=20.0)]
+    a = load_carmen(write(tmp_path / "fl.clf", "\n".join(["PARAM robot_front_laser_max 20.0 nohost 0"] + fl)))
+    b = load_carmen(write(tmp_path / "raw.clf", "\n".join(raw)))
+    assert len(a) == len(b) == 6
+    for sa, sb in zip(a.scans, b.scans):
+        assert sa.t == sb.t
+        np.testing.assert_allclose(sb.odom, sa.odom, rtol=0, atol=1e-12)
+        assert np.array_equal(sa.ranges, sb.ranges) and np.array_equal(sa.valid, sb.valid)
+        np.testing.assert_allclose(sb.angles, sa.angles, rtol=0, atol=1e-4)
+    assert b.max_range_m == 20.0 and not b.scans[0].valid[-1]
+
+
+def test_a_rawlaser1_scan_between_odom_records_takes_their_pose_at_its_time(tmp_path):
+    lines = [
+        rawlaser1([1.0, 2.0], t=9.0),  # before any ODOM: the first one's pose
+        odom_line(0.0, 0.0, 3.0, 10.0),
+        rawlaser1([1.0, 2.0], t=10.25),
+        odom_line(1.0, 2.0, -3.0, 11.0),  # the angle crossed +-pi: interpolated the short way
+        rawlaser1([1.0, 2.0], t=10.5),  # its timestamp behind the ODOM before it: clamped to that one
+        odom_line(2.0, 2.0, -3.0, 10.9),  # the clock stepped back
+        rawlaser1([1.0, 2.0], t=11.2),  # after the last ODOM: its pose
+    ]
+    seq = load_carmen(write(tmp_path / "raw.clf", "\n".join(lines)))
+    odom = np.array([s.odom for s in seq.scans])
+    np.testing.assert_allclose(odom[0], [0.0, 0.0, 3.0])
+    np.testing.assert_allclose(odom[1], [0.25, 0.5, 3.0 + 0.25 * (2 * np.pi - 6.0)], atol=1e-9)
+    np.testing.assert_allclose(odom[2], [1.0, 2.0, -3.0])  # 10.5 before 11.0: clamped to the ODOM before it
+    np.testing.assert_allclose(odom[3], [2.0, 2.0, -3.0])
+
+
+def test_rawlaser1_is_read_only_without_scans_that_carry_poses(tmp_path):
+    lines = [robotlaser1([1.0, 2.0], [], (0, 0, 0), (0, 0, 0), t=5.0), odom_line(0, 0, 0, 5.0), rawlaser1([1.0, 2.0], t=5.0)]
+    with pytest.warns(UserWarning, match="using ROBOTLASER1, ignoring 1 RAWLASER1"):
+        assert len(load_carmen(write(tmp_path / "rl.clf", "\n".join(lines)))) == 1
+    lines = [flaser([1.0, 2.0], t=5.0), odom_line(0, 0, 0, 5.0), rawlaser1([1.0, 2.0], t=5.0), rawlaser1([1.0, 2.0], t=5.1)]
+    with pytest.warns(UserWarning, match="using FLASER, ignoring 2 RAWLASER1"):
+        assert len(load_carmen(write(tmp_path / "fl.clf", "\n".join(lines)))) == 1
+
+
+@pytest.mark.parametrize(("lines", "expected"), [
+    ([rawlaser1([1.0, 2.0], t=5.0)], r"raw\.clf: 1 lines read: RAWLASER1 scans carry no robot pose and the log has no ODOM lines"),
+    ([odom_line(0, 0, 0, 4.0), "ODOM 0.1 abc 0 0 0 0 4.5 nohost 4.5", rawlaser1([1.0, 2.0], t=5.0)],
+     r"raw\.clf: line 2 \(ODOM\), field 'y': expected a number, got 'abc'"),
+    (["ODOM 0.1 0.2 0 0 0 0 4.5 nohost", rawlaser1([1.0, 2.0], t=5.0)], r"raw\.clf: line 1 \(ODOM\), field 'logger_timestamp': missing"),
+    ([odom_line(0, 0, 0, 4.0), "RAWLASER1 0 -1.57 3.14 0.01745 20 0.01 0 2 1.0 2.0 0 1.5 host"],
+     r"raw\.clf: line 2 \(RAWLASER1\), field 'logger_timestamp': missing"),
+    ([odom_line(0, 0, 0, 4.0), "RAWLASER1 0 -1.57 3.14 0.01745 20 0.01 0 2 1.0 x2 0 1.5 host 1.6"],
+     r"raw\.clf: line 2 \(RAWLASER1\), field 'range\[1\]': expected a number, got 'x2'"),
+])
+def test_bad_rawlaser1_logs_name_file_line_field(tmp_path, lines, expected):
+    with pytest.raises(DataError, match=expected):
+        load_carmen(write(tmp_path / "raw.clf", "\n".join(lines)))
 
 
 def test_scans_of_two_shapes_come_in_file_order_made_on_demand(tmp_path):

@@ -1,6 +1,6 @@
 """CARMEN logs (`.clf`, optionally gzip/bzip2/xz compressed) as a `Sequence` of scans.
 
-What is read (everything else, `ODOM` included, is skipped):
+What is read (everything else is skipped; `ODOM` too unless RAWLASER1 scans need it):
 - `FLASER n r1..rn x y theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname logger_timestamp`
   (old front-laser message; `x y theta` is the laser pose, `odom_*` the robot pose).
 - `ROBOTLASER1 laser_type start_angle fov angular_res max_range accuracy remission_mode
@@ -8,6 +8,12 @@ What is read (everything else, `ODOM` included, is skipped):
   robot_pose_theta tv rv forward_safety_dist side_safety_dist turn_axis ipc_timestamp
   ipc_hostname logger_timestamp` (angles in rad). When a log has both, ROBOTLASER1 wins
   (newer tools write FLASER copies of the same scans) and a warning says so.
+- `RAWLASER1 laser_type start_angle fov angular_res max_range accuracy remission_mode n r1..rn
+  m e1..em ipc_timestamp ipc_hostname logger_timestamp`: the front laser's raw scans, with
+  no pose. Read only when the log has neither of the above; each scan's robot pose is then
+  the `ODOM x y theta tv rv accel ipc_timestamp ipc_hostname logger_timestamp` records on
+  either side of it in the file, interpolated at its timestamp (the nearer one alone at the
+  log's ends or when their clock does not move forward). RAWLASER2-4 (other lasers) are skipped.
 - `PARAM name value`: `robot_frontlaser_offset` (m, forward), a front-laser maximum range
   (`robot_front_laser_max`, `robot_frontlaser_max`, `laser_front_laser_max_range`, ...),
   `laser_front_laser_fov` / `laser_front_laser_resolution` (deg, FLASER only).
@@ -66,6 +72,9 @@ _RL1_TAIL = (
     "ipc_timestamp", "ipc_hostname", "logger_timestamp",
 )  # fmt: skip
 
+_RAW_TAIL = ("ipc_timestamp", "ipc_hostname", "logger_timestamp")
+_ODOM_FIELDS = ("message", "x", "y", "theta", "tv", "rv", "accel", "ipc_timestamp", "ipc_hostname", "logger_timestamp")
+
 _MAX_RANGE_PARAM = re.compile(r"^(robot|laser)_front_?laser_max(imum)?(_?range)?$")
 _OFFSET_PARAM = "robot_frontlaser_offset"
 _FOV_PARAM = "laser_front_laser_fov"
@@ -104,9 +113,9 @@ class _Group:
     """Laser records of one message type and shape, gathered before one numpy conversion."""
 
     kind: str
-    shape: tuple[int, ...]  # (n,) for FLASER, (n, m) for ROBOTLASER1
+    shape: tuple[int, ...]  # (n,) for FLASER, (n, m) for ROBOTLASER1 and RAWLASER1
     linenos: list[int] = field(default_factory=list)
-    tokens: list[str] = field(default_factory=list)  # ROBOTLASER1: numeric tokens, row-major
+    tokens: list[str] = field(default_factory=list)  # ROBOTLASER1, RAWLASER1: numeric tokens, row-major
     raw: list[str] = field(default_factory=list)  # FLASER: the lines themselves
     values: np.ndarray | None = None  # (L, width) float64 once converted
 
@@ -128,8 +137,9 @@ def _flaser_field(n: int, j: int) -> str:
     return _FLASER_TAIL[min(j - n - 2, len(_FLASER_TAIL) - 1)]
 
 
-def _rl1_field(n: int, m: int, j: int) -> str:
-    """Name of token j of a ROBOTLASER1 line with n readings and m remissions."""
+def _rl1_field(n: int, m: int, j: int, tail: tuple[str, ...] = _RL1_TAIL) -> str:
+    """Name of token j of a ROBOTLASER1 line with n readings and m remissions (of a
+    RAWLASER1 line with `tail` = `_RAW_TAIL`: the same head, no poses)."""
     if j == 0:
         return "message"
     if j <= 8:
@@ -140,7 +150,12 @@ def _rl1_field(n: int, m: int, j: int) -> str:
         return "num_remissions"
     if j < 10 + n + m:
         return f"remission[{j - 10 - n}]"
-    return _RL1_TAIL[min(j - 10 - n - m, len(_RL1_TAIL) - 1)]
+    return tail[min(j - 10 - n - m, len(tail) - 1)]
+
+
+def _raw_field(n: int, m: int, j: int) -> str:
+    """Name of token j of a RAWLASER1 line with n readings and m remissions."""
+    return _rl1_field(n, m, j, _RAW_TAIL)
 
 
 def _count(path: Path, parts: list[str], j: int, name: str, record: str) -> int:
@@ -166,11 +181,13 @@ def _check_length(path: Path, parts: list[str], need: int, record: str, names, c
                     record=record, field=names(need - 1))  # fmt: skip
 
 
-def _scan_lines(path: Path, lines: list[str], bad: BadLines) -> tuple[dict[tuple, _Group], dict[str, _Param]]:
-    """One pass over the log: group laser records by shape, collect PARAMs; unreadable
-    laser lines go to `bad` (raised, or dropped and counted)."""
+def _scan_lines(path: Path, lines: list[str], bad: BadLines) -> tuple[dict[tuple, _Group], dict[str, _Param], list[int]]:
+    """One pass over the log: group laser records by shape, collect PARAMs and the line
+    numbers of ODOM records; unreadable laser lines go to `bad` (raised, or dropped and
+    counted)."""
     groups: dict[tuple, _Group] = {}
     params: dict[str, _Param] = {}
+    odom: list[int] = []
     for lineno, line in enumerate(lines, 1):
         first = line[:1]
         if first == "F" and line.startswith("FLASER"):
@@ -203,6 +220,27 @@ def _scan_lines(path: Path, lines: list[str], bad: BadLines) -> tuple[dict[tuple
             g.linenos.append(lineno)
             g.tokens.extend(parts[1 : n + m + 22])
             g.tokens.append(parts[n + m + 23])
+        elif first == "R" and line.startswith("RAWLASER1"):
+            parts = line.split()
+            if parts[0] != "RAWLASER1":
+                continue
+            record = f"line {lineno} (RAWLASER1)"
+            try:
+                n = _count(path, parts, 8, "num_readings", record)
+                m = _count(path, parts, 9 + n, "num_remissions", record)
+                _check_length(path, parts, n + m + 13, record, lambda j: _raw_field(n, m, j),
+                              f"num_readings={n}, num_remissions={m}")  # fmt: skip
+            except DataError as exc:
+                bad.add(lineno, exc)
+                continue
+            g = groups.get(("RAWLASER1", n, m))
+            if g is None:
+                g = groups[("RAWLASER1", n, m)] = _Group("RAWLASER1", (n, m))
+            g.linenos.append(lineno)
+            g.tokens.extend(parts[1 : n + m + 11])  # the head to the ipc_timestamp; then the logger_timestamp
+            g.tokens.append(parts[n + m + 12])
+        elif first == "O" and line.split(None, 1)[0] == "ODOM":
+            odom.append(lineno)
         elif first == "P" and line.startswith("PARAM"):
             parts = line.split()
             if parts[0] == "PARAM" and len(parts) >= 3:
@@ -211,7 +249,7 @@ def _scan_lines(path: Path, lines: list[str], bad: BadLines) -> tuple[dict[tuple
         if g.kind == "FLASER":
             _convert_flaser(path, lines, g, bad)
     kept = [g for g in groups.values() if g.linenos]  # every line of a group may have been bad
-    return {(g.kind, *g.shape, i): g for i, g in enumerate(kept)}, params
+    return {(g.kind, *g.shape, i): g for i, g in enumerate(kept)}, params, odom
 
 
 def _convert_flaser(path: Path, lines: list[str], g: _Group, bad: BadLines) -> None:
@@ -284,10 +322,14 @@ def _drop_bad_numbers(path: Path, lines: list[str], g: _Group, numpy_message: st
             n = g.shape[0]
             idx = [*range(2, n + 9), n + 10]
             names = lambda j: _flaser_field(n, j)  # noqa: E731
-        else:
+        elif g.kind == "ROBOTLASER1":
             n, m = g.shape
             idx = [*range(1, n + m + 22), n + m + 23]
             names = lambda j: _rl1_field(n, m, j)  # noqa: E731
+        else:
+            n, m = g.shape
+            idx = [*range(1, n + m + 11), n + m + 12]
+            names = lambda j: _raw_field(n, m, j)  # noqa: E731
         wrong = next((j for j in idx if not _is_number(parts[j])), None)
         if wrong is None:
             keep.append(i)
@@ -533,6 +575,47 @@ def _frames(parsed: _ParsedLog) -> LazyScans:
     return LazyScans(_RecordFrame(parsed.blocks, block_of, row_of, times), np.arange(n), times, odom)
 
 
+def _odometry_at(path: Path, lines: list[str], odom_lines: list[int], scan_lines: np.ndarray, t: np.ndarray, bad: BadLines) -> np.ndarray:
+    """(L, 3) the robot's pose (m, m, rad) at each RAWLASER1 scan (on line `scan_lines`,
+    timestamp `t` s): the ODOM records just before and just after it in the file, interpolated
+    linearly at its time (the angle along the shorter way round), clamped to the two; the one
+    there is at the log's ends, and the earlier one when their timestamps do not increase
+    (a clock stepping back: the file's order holds). Unreadable ODOM lines go to `bad`."""
+    values, kept = [], []
+    for lineno in odom_lines:
+        parts = lines[lineno - 1].split()
+        record = f"line {lineno} (ODOM)"
+        try:
+            _check_length(path, parts, len(_ODOM_FIELDS), record, lambda j: _ODOM_FIELDS[min(j, len(_ODOM_FIELDS) - 1)], "ODOM")
+            row = []
+            for j in (1, 2, 3, 7):
+                try:
+                    v = float(parts[j])
+                except ValueError:
+                    raise DataError(path, f"expected a number, got {parts[j]!r}", record=record, field=_ODOM_FIELDS[j]) from None
+                if not np.isfinite(v):
+                    raise DataError(path, f"expected a finite number, got {parts[j]!r}", record=record, field=_ODOM_FIELDS[j])
+                row.append(v)
+        except DataError as exc:
+            bad.add(lineno, exc)
+            continue
+        values.append(row)
+        kept.append(lineno)
+    if not kept:
+        raise DataError(path, "RAWLASER1 scans carry no robot pose and no ODOM line of the log could be read",
+                        record=f"{len(odom_lines)} ODOM lines")  # fmt: skip
+    odom = np.array(values)  # (K, 4): x, y, theta, ipc_timestamp
+    after = np.searchsorted(np.asarray(kept), scan_lines)  # the first ODOM record after each scan
+    i0 = np.clip(after - 1, 0, len(kept) - 1)  # the one before (the first one for scans before any)
+    i1 = np.clip(after, 0, len(kept) - 1)  # the one after (the last one for scans after all)
+    t0, t1 = odom[i0, 3], odom[i1, 3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = np.where(t1 > t0, np.clip((t - t0) / (t1 - t0), 0.0, 1.0), 0.0)
+    xy = odom[i0, :2] + f[:, None] * (odom[i1, :2] - odom[i0, :2])
+    theta = odom[i0, 2] + f * wrap_angle(odom[i1, 2] - odom[i0, 2])  # a record's own angle as written at its time
+    return np.column_stack([xy, theta])
+
+
 def _parse_log(path: Path, max_range_m: float | None, on_bad_line: str) -> _ParsedLog:
     """Read and check the whole log (see `load_carmen`); warnings are issued as they arise."""
     text = read_text(path)
@@ -545,20 +628,28 @@ def _parse_log(path: Path, max_range_m: float | None, on_bad_line: str) -> _Pars
     if ends_cleanly and lines:
         lines.pop()
     bad = BadLines(path, len(lines), on_bad_line, truncated=not ends_cleanly)
-    groups, params = _scan_lines(path, lines, bad)
+    groups, params, odom_lines = _scan_lines(path, lines, bad)
     for g in groups.values():  # numbers first: in skip mode a group may lose every line here
         g.values = _to_numbers(path, lines, g, bad)
     groups = {k: g for k, g in groups.items() if g.linenos}
 
     kinds = {key[0] for key in groups}
     if not groups:
-        raise DataError(path, "no laser scans (FLASER or ROBOTLASER1 lines) in the log",
+        raise DataError(path, "no laser scans (FLASER, ROBOTLASER1 or RAWLASER1 lines) in the log",
                         record=f"{len(lines)} lines read")  # fmt: skip
     if kinds == {"FLASER", "ROBOTLASER1"}:
         n_fl = sum(len(g.linenos) for k, g in groups.items() if k[0] == "FLASER")
         warnings.warn(f"{path}: has ROBOTLASER1 and FLASER scans; using ROBOTLASER1, ignoring {n_fl} FLASER lines",
                       stacklevel=3)  # fmt: skip
         groups = {k: g for k, g in groups.items() if k[0] == "ROBOTLASER1"}
+    if "RAWLASER1" in kinds and len(kinds) > 1:  # raw copies of scans the log also has with their poses
+        n_raw = sum(len(g.linenos) for k, g in groups.items() if k[0] == "RAWLASER1")
+        used = "ROBOTLASER1" if "ROBOTLASER1" in kinds else "FLASER"
+        warnings.warn(f"{path}: has {used} and RAWLASER1 scans; using {used}, ignoring {n_raw} RAWLASER1 lines", stacklevel=3)
+        groups = {k: g for k, g in groups.items() if k[0] != "RAWLASER1"}
+    if "RAWLASER1" in kinds and len(kinds) == 1 and not odom_lines:
+        raise DataError(path, "RAWLASER1 scans carry no robot pose and the log has no ODOM lines to take it from",
+                        record=f"{len(lines)} lines read")  # fmt: skip
 
     offset_x = _param_float(path, params, _OFFSET_PARAM)
     fov_deg = _param_float(path, params, _FOV_PARAM)
@@ -575,6 +666,10 @@ def _parse_log(path: Path, max_range_m: float | None, on_bad_line: str) -> _Pars
         if g.kind == "FLASER":
             n = g.shape[0]
             keep = _finite_rows(path, g, a[:, n:], [f for f in _FLASER_TAIL if f != "ipc_hostname"], bad)
+        elif g.kind == "RAWLASER1":
+            n, m = g.shape
+            keep = _finite_rows(path, g, a[:, :8], list(_RL1_HEAD), bad) & _finite_rows(
+                path, g, a[:, n + m + 9 :], [f for f in _RAW_TAIL if f != "ipc_hostname"], bad)
         else:
             n, m = g.shape
             keep = _finite_rows(path, g, a[:, :8], list(_RL1_HEAD), bad) & _finite_rows(
@@ -593,7 +688,12 @@ def _parse_log(path: Path, max_range_m: float | None, on_bad_line: str) -> _Pars
             head = a[:, :8]
             tail = a[:, n + m + 9 :]
             ranges = a[:, 8 : 8 + n]
-            laser, robot, t = tail[:, 0:3], tail[:, 3:6], tail[:, 11]
+            if g.kind == "ROBOTLASER1":
+                laser, robot, t = tail[:, 0:3], tail[:, 3:6], tail[:, 11]
+            else:  # RAWLASER1: the robot's pose from the ODOM records around each scan, the laser at its PARAM offset
+                t = tail[:, 0]
+                robot = _odometry_at(path, lines, odom_lines, np.asarray(g.linenos), t, bad)
+                laser = robot
             rec_max = np.where(head[:, 4] > 0, head[:, 4], np.nan)
             ang = head[:, 1:2] + head[:, 3:4] * np.arange(n)
             # One shared angle array when every record has the same geometry (the usual case).
@@ -601,7 +701,7 @@ def _parse_log(path: Path, max_range_m: float | None, on_bad_line: str) -> _Pars
         parsed.append((g, ranges, laser, robot, t, rec_max, angles))
     bad.warn()
     if not parsed:
-        raise DataError(path, "no readable laser scans: every FLASER / ROBOTLASER1 line was bad",
+        raise DataError(path, "no readable laser scans: every FLASER / ROBOTLASER1 / RAWLASER1 line was bad",
                         record=f"{len(bad.skipped)} lines skipped")  # fmt: skip
     del lines, groups  # the text is parsed: free it before the arrays below are made
 
