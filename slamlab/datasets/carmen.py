@@ -73,6 +73,7 @@ _RL1_TAIL = (
 )  # fmt: skip
 
 _RAW_TAIL = ("ipc_timestamp", "ipc_hostname", "logger_timestamp")
+_HEADED_TAILS = {"ROBOTLASER1": _RL1_TAIL, "RAWLASER1": _RAW_TAIL}  # the laser messages that share ROBOTLASER1's head
 _ODOM_FIELDS = ("message", "x", "y", "theta", "tv", "rv", "accel", "ipc_timestamp", "ipc_hostname", "logger_timestamp")
 
 _MAX_RANGE_PARAM = re.compile(r"^(robot|laser)_front_?laser_max(imum)?(_?range)?$")
@@ -153,9 +154,7 @@ def _rl1_field(n: int, m: int, j: int, tail: tuple[str, ...] = _RL1_TAIL) -> str
     return tail[min(j - 10 - n - m, len(tail) - 1)]
 
 
-def _raw_field(n: int, m: int, j: int) -> str:
-    """Name of token j of a RAWLASER1 line with n readings and m remissions."""
-    return _rl1_field(n, m, j, _RAW_TAIL)
+
 
 
 def _count(path: Path, parts: list[str], j: int, name: str, record: str) -> int:
@@ -181,6 +180,30 @@ def _check_length(path: Path, parts: list[str], need: int, record: str, names, c
                     record=record, field=names(need - 1))  # fmt: skip
 
 
+def _add_headed(path: Path, groups: dict[tuple, _Group], bad: BadLines, parts: list[str], lineno: int) -> None:
+    """A ROBOTLASER1 or RAWLASER1 line (`parts`: its tokens) into the group of its kind and
+    shape; an unreadable one to `bad`. Both kinds have the same head and ranges and
+    remissions; then their own tail (`_HEADED_TAILS`)."""
+    kind = parts[0]
+    tail = _HEADED_TAILS[kind]
+    record = f"line {lineno} ({kind})"
+    try:
+        n = _count(path, parts, 8, "num_readings", record)
+        m = _count(path, parts, 9 + n, "num_remissions", record)
+        need = n + m + 10 + len(tail)
+        _check_length(path, parts, need, record, lambda j: _rl1_field(n, m, j, tail),
+                      f"num_readings={n}, num_remissions={m}")  # fmt: skip
+    except DataError as exc:
+        bad.add(lineno, exc)
+        return
+    g = groups.get((kind, n, m))
+    if g is None:
+        g = groups[(kind, n, m)] = _Group(kind, (n, m))
+    g.linenos.append(lineno)
+    g.tokens.extend(parts[1 : need - 2])  # every value but the host name, the last but one
+    g.tokens.append(parts[need - 1])
+
+
 def _scan_lines(path: Path, lines: list[str], bad: BadLines) -> tuple[dict[tuple, _Group], dict[str, _Param], list[int]]:
     """One pass over the log: group laser records by shape, collect PARAMs and the line
     numbers of ODOM records; unreadable laser lines go to `bad` (raised, or dropped and
@@ -201,44 +224,10 @@ def _scan_lines(path: Path, lines: list[str], bad: BadLines) -> tuple[dict[tuple
                 g = groups[key] = _Group("FLASER", ())
             g.linenos.append(lineno)
             g.raw.append(line)
-        elif first == "R" and line.startswith("ROBOTLASER1"):
+        elif first == "R" and line.startswith(("ROBOTLASER1", "RAWLASER1")):
             parts = line.split()
-            if parts[0] != "ROBOTLASER1":
-                continue
-            record = f"line {lineno} (ROBOTLASER1)"
-            try:
-                n = _count(path, parts, 8, "num_readings", record)
-                m = _count(path, parts, 9 + n, "num_remissions", record)
-                _check_length(path, parts, n + m + 24, record, lambda j: _rl1_field(n, m, j),
-                              f"num_readings={n}, num_remissions={m}")  # fmt: skip
-            except DataError as exc:
-                bad.add(lineno, exc)
-                continue
-            g = groups.get(("ROBOTLASER1", n, m))
-            if g is None:
-                g = groups[("ROBOTLASER1", n, m)] = _Group("ROBOTLASER1", (n, m))
-            g.linenos.append(lineno)
-            g.tokens.extend(parts[1 : n + m + 22])
-            g.tokens.append(parts[n + m + 23])
-        elif first == "R" and line.startswith("RAWLASER1"):
-            parts = line.split()
-            if parts[0] != "RAWLASER1":
-                continue
-            record = f"line {lineno} (RAWLASER1)"
-            try:
-                n = _count(path, parts, 8, "num_readings", record)
-                m = _count(path, parts, 9 + n, "num_remissions", record)
-                _check_length(path, parts, n + m + 13, record, lambda j: _raw_field(n, m, j),
-                              f"num_readings={n}, num_remissions={m}")  # fmt: skip
-            except DataError as exc:
-                bad.add(lineno, exc)
-                continue
-            g = groups.get(("RAWLASER1", n, m))
-            if g is None:
-                g = groups[("RAWLASER1", n, m)] = _Group("RAWLASER1", (n, m))
-            g.linenos.append(lineno)
-            g.tokens.extend(parts[1 : n + m + 11])  # the head to the ipc_timestamp; then the logger_timestamp
-            g.tokens.append(parts[n + m + 12])
+            if parts[0] in _HEADED_TAILS:
+                _add_headed(path, groups, bad, parts, lineno)
         elif first == "O" and line.split(None, 1)[0] == "ODOM":
             odom.append(lineno)
         elif first == "P" and line.startswith("PARAM"):
@@ -322,14 +311,12 @@ def _drop_bad_numbers(path: Path, lines: list[str], g: _Group, numpy_message: st
             n = g.shape[0]
             idx = [*range(2, n + 9), n + 10]
             names = lambda j: _flaser_field(n, j)  # noqa: E731
-        elif g.kind == "ROBOTLASER1":
-            n, m = g.shape
-            idx = [*range(1, n + m + 22), n + m + 23]
-            names = lambda j: _rl1_field(n, m, j)  # noqa: E731
         else:
             n, m = g.shape
-            idx = [*range(1, n + m + 11), n + m + 12]
-            names = lambda j: _raw_field(n, m, j)  # noqa: E731
+            tail = _HEADED_TAILS[g.kind]
+            need = n + m + 10 + len(tail)
+            idx = [*range(1, need - 2), need - 1]
+            names = lambda j: _rl1_field(n, m, j, tail)  # noqa: E731
         wrong = next((j for j in idx if not _is_number(parts[j])), None)
         if wrong is None:
             keep.append(i)
@@ -666,14 +653,10 @@ def _parse_log(path: Path, max_range_m: float | None, on_bad_line: str) -> _Pars
         if g.kind == "FLASER":
             n = g.shape[0]
             keep = _finite_rows(path, g, a[:, n:], [f for f in _FLASER_TAIL if f != "ipc_hostname"], bad)
-        elif g.kind == "RAWLASER1":
-            n, m = g.shape
-            keep = _finite_rows(path, g, a[:, :8], list(_RL1_HEAD), bad) & _finite_rows(
-                path, g, a[:, n + m + 9 :], [f for f in _RAW_TAIL if f != "ipc_hostname"], bad)
         else:
             n, m = g.shape
             keep = _finite_rows(path, g, a[:, :8], list(_RL1_HEAD), bad) & _finite_rows(
-                path, g, a[:, n + m + 9 :], [f for f in _RL1_TAIL if f != "ipc_hostname"], bad)
+                path, g, a[:, n + m + 9 :], [f for f in _HEADED_TAILS[g.kind] if f != "ipc_hostname"], bad)
         if not keep.all():  # skip mode: drop the lines with a non-finite pose or time
             a, g.linenos = a[keep], [ln for ln, k in zip(g.linenos, keep) if k]
         if not g.linenos:
